@@ -1,0 +1,142 @@
+"""The dynamical model of the paper (section 3.1): kinematics and the template walk.
+
+Kinematics. The state of a particle is ``s = [x, y, vx, vy, scale, theta]``
+(centre in pixels, velocity in pixels per frame, scale relative to the initial
+box, rotation in radians). It moves by a near-constant-velocity linear model
+``s_t = A s_{t-1} + u_t`` with ``x += vx``, ``y += vy`` and the velocity damped
+by ``velocity_decay``; scale is updated multiplicatively (``scale *= exp(u)``),
+the first-order equivalent of an additive step that can never turn negative.
+The noise ``u_t`` comes from two interacting Gaussian modes: every particle,
+every frame, draws mode 0 (small, everyday motion) with probability 0.9 or
+mode 1 (wide, sudden pose change) with probability 0.1. Positional and velocity
+noise are in units of the target's current size ``sqrt(w·h)·scale``, so the
+defaults transfer from small to large targets.
+
+Template. Each particle carries its own template in log space, a symmetric
+``L`` with ``C = expm(L)``; it walks by ``L_t = L_{t-1} + W``, ``W`` symmetric
+with independent entries ``W_ij = W_ji ~ N(0, σ_ij²)`` (the paper's eq. 11).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["KinematicModel", "propagate_kinematics", "symmetric_noise", "template_walk"]
+
+X, Y, VX, VY, SCALE, THETA = range(6)
+
+
+@dataclass(frozen=True)
+class KinematicModel:
+    """Parameters of the kinematic model; index 0 / 1 of each pair is mode 0 / 1.
+
+    Attributes
+    ----------
+    mode_probs : (float, float)
+        Probability of each noise mode (the paper: 0.9 / 0.1).
+    pos_sigma : (float, float)
+        Std of the position noise, fraction of the target size per frame.
+    vel_sigma : (float, float)
+        Std of the velocity noise, fraction of the target size per frame.
+    scale_sigma : (float, float)
+        Std of the log-scale noise per frame.
+    rot_sigma : (float, float)
+        Std of the rotation noise, radians per frame.
+    velocity_decay : float
+        Factor applied to the velocity each frame (1 = constant velocity).
+    scale_range : (float, float)
+        Scales are clipped to this range.
+    max_rotation : float
+        Rotations are clipped to ``[-max_rotation, max_rotation]`` radians.
+    """
+
+    mode_probs: tuple[float, float] = (0.9, 0.1)
+    pos_sigma: tuple[float, float] = (0.04, 0.20)
+    vel_sigma: tuple[float, float] = (0.02, 0.10)
+    scale_sigma: tuple[float, float] = (0.01, 0.04)
+    rot_sigma: tuple[float, float] = (0.01, 0.06)
+    velocity_decay: float = 0.9
+    scale_range: tuple[float, float] = (0.2, 5.0)
+    max_rotation: float = np.pi / 2
+
+    def __post_init__(self):
+        p = self.mode_probs
+        if len(p) != 2 or min(p) < 0 or abs(sum(p) - 1) > 1e-9:
+            raise ValueError(f"mode_probs must be two probabilities summing to 1, got {p}")
+        for name in ("pos_sigma", "vel_sigma", "scale_sigma", "rot_sigma"):
+            v = getattr(self, name)
+            if len(v) != 2 or min(v) < 0:
+                raise ValueError(f"{name} must be two non-negative numbers (mode 0, mode 1), got {v}")
+        if not 0 <= self.velocity_decay <= 1:
+            raise ValueError(f"velocity_decay must be in [0, 1], got {self.velocity_decay}")
+        lo, hi = self.scale_range
+        if not 0 < lo < 1 < hi:
+            raise ValueError(f"scale_range must satisfy 0 < lo < 1 < hi, got {self.scale_range}")
+
+
+def propagate_kinematics(states: np.ndarray, model: KinematicModel, base_size: float, rng):
+    """One step of the kinematic model for every particle.
+
+    Parameters
+    ----------
+    states : ndarray, shape (n, 6)
+        ``x, y, vx, vy, scale, theta`` per particle. Not modified.
+    model : KinematicModel
+    base_size : float
+        ``sqrt(w·h)`` of the initial box, pixels.
+    rng : numpy.random.Generator or seed
+
+    Returns
+    -------
+    new_states : ndarray, shape (n, 6)
+    modes : ndarray, shape (n,), int8
+        The noise mode each particle drew (0 or 1).
+    """
+    rng = np.random.default_rng(rng)
+    s = np.asarray(states, dtype=np.float64)
+    n = len(s)
+    modes = (rng.random(n) < model.mode_probs[1]).astype(np.int8)
+    z = rng.standard_normal((n, 5))
+    pick = lambda pair: np.asarray(pair, dtype=np.float64)[modes]  # noqa: E731
+    size = base_size * s[:, SCALE]
+    out = np.empty_like(s)
+    out[:, VX] = model.velocity_decay * s[:, VX] + pick(model.vel_sigma) * size * z[:, 0]
+    out[:, VY] = model.velocity_decay * s[:, VY] + pick(model.vel_sigma) * size * z[:, 1]
+    out[:, X] = s[:, X] + out[:, VX] + pick(model.pos_sigma) * size * z[:, 2]
+    out[:, Y] = s[:, Y] + out[:, VY] + pick(model.pos_sigma) * size * z[:, 3]
+    out[:, SCALE] = np.clip(s[:, SCALE] * np.exp(pick(model.scale_sigma) * z[:, 4]), *model.scale_range)
+    rot = rng.standard_normal(n)
+    out[:, THETA] = np.clip(s[:, THETA] + pick(model.rot_sigma) * rot, -model.max_rotation, model.max_rotation)
+    return out, modes
+
+
+def symmetric_noise(n: int, sigma, rng) -> np.ndarray:
+    """``n`` random symmetric matrices with ``W_ij = W_ji ~ N(0, σ_ij²)``.
+
+    Parameters
+    ----------
+    n : int
+    sigma : ndarray, shape (d, d)
+        Symmetric, non-negative standard deviations.
+    rng : numpy.random.Generator or seed
+
+    Returns
+    -------
+    ndarray, shape (n, d, d)
+    """
+    rng = np.random.default_rng(rng)
+    sigma = np.asarray(sigma, dtype=np.float64)
+    d = sigma.shape[0]
+    iu = np.triu_indices(d)
+    W = np.zeros((n, d, d))
+    W[:, iu[0], iu[1]] = rng.standard_normal((n, len(iu[0]))) * sigma[iu]
+    W = W + np.swapaxes(np.triu(W, 1), 1, 2)
+    return W
+
+
+def template_walk(L: np.ndarray, sigma, rng) -> np.ndarray:
+    """The paper's template random walk in log space: ``L + W`` (a new array)."""
+    L = np.asarray(L)
+    return L + symmetric_noise(len(L), sigma, rng)

@@ -1,0 +1,206 @@
+"""Image -> warped patches for a batch of poses -> the paper's 9 per-pixel features.
+
+A pose ``(cx, cy, scale, theta)`` with the target's base size ``(w, h)`` names a
+(possibly rotated) region of the frame. :func:`warp_patches` samples every
+region onto a ``size x size`` grid (32 x 32 in the paper) by bilinear
+interpolation, with a one-pixel border so that derivatives at the patch edge
+use real image context. :func:`patch_features` turns those patches into the
+feature vectors of the paper's eq. (2)::
+
+    f = [x, y, I, |Ix|, |Iy|, sqrt(Ix² + Iy²), atan(|Ix| / |Iy|), |Ixx|, |Iyy|]
+
+with ``x, y`` the patch coordinates, ``I`` the intensity, and the derivatives
+taken on the warped patch (central differences ``[-1, 0, 1]/2`` and
+``[1, -2, 1]``).
+
+Feature scales. The affine-invariant distance between descriptors does not
+depend on a per-feature scaling (a diagonal congruence), but the
+regulariser and the template random walk do; each feature is therefore scaled
+by a fixed constant (:data:`FEATURE_SCALE`) so that their variances on natural
+images are of the same order (about 0.01 to 0.1).
+
+All arrays are float32 for speed; coordinates are 0-based continuous pixels
+(see :mod:`covviz.records`).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "FEATURE_NAMES",
+    "FEATURE_SCALE",
+    "N_FEATURES",
+    "pose_corners",
+    "pose_to_box",
+    "patch_features",
+    "sample_grid",
+    "warp_patches",
+]
+
+FEATURE_NAMES = ("x", "y", "I", "|Ix|", "|Iy|", "|grad I|", "atan(|Ix|/|Iy|)", "|Ixx|", "|Iyy|")
+N_FEATURES = len(FEATURE_NAMES)
+#: Fixed per-feature scale (intensity in [0, 1], coordinates in [-1/2, 1/2], angle in [0, 1]).
+#: ``|Ix|``, ``|Iy|`` and the magnitude must share one scale.
+FEATURE_SCALE = np.array([1.0, 1.0, 1.0, 4.0, 4.0, 4.0, 2.0 / np.pi, 2.0, 2.0], dtype=np.float32)
+
+
+def _poses(poses) -> np.ndarray:
+    p = np.asarray(poses, dtype=np.float64)
+    if p.ndim == 1:
+        p = p[None]
+    if p.ndim != 2 or p.shape[1] != 4:
+        raise ValueError(f"poses must have shape (n, 4) as cx, cy, scale, theta; got {np.shape(poses)}")
+    return p
+
+
+def pose_corners(poses, base_wh) -> np.ndarray:
+    """Corners of each pose's region, ``(n, 4, 2)``: TL, TR, BR, BL in pixels."""
+    p = _poses(poses)
+    w, h = float(base_wh[0]), float(base_wh[1])
+    q = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+    c, s = np.cos(p[:, 3]), np.sin(p[:, 3])
+    ox = q[None, :, 0] * w * p[:, 2, None]
+    oy = q[None, :, 1] * h * p[:, 2, None]
+    x = p[:, 0, None] + c[:, None] * ox - s[:, None] * oy
+    y = p[:, 1, None] + s[:, None] * ox + c[:, None] * oy
+    return np.stack([x, y], axis=-1)
+
+
+def pose_to_box(poses, base_wh) -> np.ndarray:
+    """Axis-aligned ``x, y, w, h`` of each pose, ignoring rotation, ``(n, 4)``.
+
+    This is how a tracker reports its estimate (OTB boxes are axis-aligned and
+    annotated unrotated); the rotated region is in :func:`pose_corners`.
+    """
+    p = _poses(poses)
+    w = base_wh[0] * p[:, 2]
+    h = base_wh[1] * p[:, 2]
+    return np.stack([p[:, 0] - w / 2, p[:, 1] - h / 2, w, h], axis=1)
+
+
+def sample_grid(poses, base_wh, size: int = 32, border: int = 1, step: float = 1.0):
+    """Sampling coordinates of every pose's grid, for :func:`cv2.remap`.
+
+    Grid point ``(u, v)``, ``u, v = -border … size-1+border``, of a pose sits at
+    ``c + R(theta) · scale · (w·qu, h·qv)`` with ``q = (u + ½)/size − ½``, so the
+    ``size x size`` interior tiles the region exactly.
+
+    Parameters
+    ----------
+    poses : ndarray, shape (n, 4)
+    base_wh : (float, float)
+        Width and height of the region at scale 1, pixels.
+    size, border : int
+    step : float
+        The image was downsampled by this factor (coordinates are divided by it).
+
+    Returns
+    -------
+    map_x, map_y : ndarray, shape (n, size + 2·border, size + 2·border), float32
+        Pixel-centre coordinates (continuous coordinate − ½), as cv2.remap wants.
+    """
+    p = _poses(poses)
+    g = size + 2 * border
+    q = (np.arange(-border, size + border, dtype=np.float64) + 0.5) / size - 0.5
+    c, s = np.cos(p[:, 3]), np.sin(p[:, 3])
+    sw = (base_wh[0] * p[:, 2])[:, None, None]
+    sh = (base_wh[1] * p[:, 2])[:, None, None]
+    qx = q[None, None, :]
+    qy = q[None, :, None]
+    ox, oy = sw * qx, sh * qy
+    X = p[:, 0, None, None] + c[:, None, None] * ox - s[:, None, None] * oy
+    Y = p[:, 1, None, None] + s[:, None, None] * ox + c[:, None, None] * oy
+    inv = 1.0 / step
+    return (X * inv - 0.5).astype(np.float32).reshape(-1, g, g), (Y * inv - 0.5).astype(np.float32).reshape(-1, g, g)
+
+
+def warp_patches(gray: np.ndarray, poses, base_wh, size: int = 32, border: int = 1, step: float = 1.0):
+    """Bilinear warp of every pose's region to a ``(size+2b) x (size+2b)`` patch.
+
+    One :func:`cv2.remap` call serves all poses (their grids are stacked
+    vertically). Samples outside the frame replicate the border pixel.
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W), float32
+        Frame intensities (in [0, 1]), possibly downsampled by ``step``.
+    poses : ndarray, shape (n, 4)
+    base_wh : (float, float)
+
+    Returns
+    -------
+    ndarray, shape (n, size + 2·border, size + 2·border), float32
+    """
+    mx, my = sample_grid(poses, base_wh, size, border, step)
+    n, g, _ = mx.shape
+    out = cv2.remap(
+        np.ascontiguousarray(gray, dtype=np.float32),
+        mx.reshape(n * g, g),
+        my.reshape(n * g, g),
+        interpolation=cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
+    return out.reshape(n, g, g)
+
+
+def patch_features(patches: np.ndarray, border: int = 1) -> np.ndarray:
+    """The 9 per-pixel features of the interior of each patch.
+
+    Parameters
+    ----------
+    patches : ndarray, shape (n, S + 2, S + 2), float32
+        Warped patches with a one-pixel border (``border`` must be 1).
+
+    Returns
+    -------
+    ndarray, shape (n, 9, S·S), float32
+        Features along axis 1 (in :data:`FEATURE_NAMES` order, scaled by
+        :data:`FEATURE_SCALE`), pixels along axis 2 (row-major). The array is a
+        view of a feature-major buffer (the fastest layout to fill).
+
+    Notes
+    -----
+    Two features are shifted, which leaves their covariance unchanged but keeps
+    the float32 second moments accurate: the coordinates are centred
+    (``x, y`` in ``[-½, ½]``) and the intensity has its patch mean removed.
+    """
+    if border != 1:
+        raise ValueError("patch_features needs patches with a one-pixel border")
+    P = np.asarray(patches, dtype=np.float32)
+    if P.ndim != 3 or P.shape[1] != P.shape[2] or P.shape[1] < 3:
+        raise ValueError(f"patches must have shape (n, S+2, S+2); got {P.shape}")
+    n, g, _ = P.shape
+    S = g - 2
+    F = np.empty((N_FEATURES, n, S, S), dtype=np.float32)
+    k = FEATURE_SCALE
+    u = (np.arange(S, dtype=np.float32) + 0.5) / S - 0.5
+    F[0] = u[None, None, :] * k[0]
+    F[1] = u[None, :, None] * k[1]
+    C = P[:, 1:-1, 1:-1]
+    np.subtract(C, C.mean(axis=(1, 2), keepdims=True), out=F[2])
+    F[2] *= k[2]
+    # |Ix|, |Iy|: central differences [-1, 0, 1] / 2, scaled.
+    np.subtract(P[:, 1:-1, 2:], P[:, 1:-1, :-2], out=F[3])
+    np.subtract(P[:, 2:, 1:-1], P[:, :-2, 1:-1], out=F[4])
+    np.abs(F[3], out=F[3])
+    np.abs(F[4], out=F[4])
+    F[3] *= 0.5 * k[3]
+    F[4] *= 0.5 * k[4]
+    # sqrt(Ix² + Iy²) (k[3] == k[4] == k[5], so the scaled magnitude is exact).
+    cv2.magnitude(F[3].reshape(n * S, S), F[4].reshape(n * S, S), F[5].reshape(n * S, S))
+    # atan(|Ix| / |Iy|) in [0, pi/2], defined where Iy == 0.
+    np.arctan2(F[3], F[4], out=F[6])
+    F[6] *= k[6]
+    # |Ixx|, |Iyy|: [1, -2, 1].
+    np.add(P[:, 1:-1, 2:], P[:, 1:-1, :-2], out=F[7])
+    np.add(P[:, 2:, 1:-1], P[:, :-2, 1:-1], out=F[8])
+    C2 = 2.0 * C
+    F[7] -= C2
+    F[8] -= C2
+    np.abs(F[7], out=F[7])
+    np.abs(F[8], out=F[8])
+    F[7] *= k[7]
+    F[8] *= k[8]
+    return F.reshape(N_FEATURES, n, S * S).transpose(1, 0, 2)

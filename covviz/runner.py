@@ -1,0 +1,151 @@
+"""The tracking loop: frames in, boxes and records out, observers informed.
+
+``run(tracker, sequence, observers)`` initialises the tracker on the first
+frame, calls ``update`` on every later frame, times each call, and hands the
+tracker's :class:`~covviz.records.FrameRecord` with the :class:`Frame` to every
+observer. Observers are plain objects with any of the methods
+``on_start(sequence, tracker)``, ``on_frame(frame, record)`` and
+``on_end(result)``; the core never imports them.
+
+A Ctrl-C or an exception inside the tracker stops the loop; observers still get
+``on_end`` with the frames done so far (``result.interrupted`` is True), so a
+recording holds every frame logged before the interruption. The exception is
+then re-raised.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Iterable, Sequence as Seq
+
+import numpy as np
+
+from covviz.records import FrameRecord, RunResult
+from covviz.sequences import Frame, Sequence
+
+__all__ = ["Observer", "run", "run_many"]
+
+
+class Observer:
+    """Base class for observers (all methods optional)."""
+
+    def on_start(self, sequence: Sequence, trackers: Seq) -> None:  # pragma: no cover - interface
+        pass
+
+    def on_frame(self, frame: Frame, records: Seq[FrameRecord]) -> None:  # pragma: no cover
+        pass
+
+    def on_end(self, results: Seq[RunResult]) -> None:  # pragma: no cover
+        pass
+
+
+def _progress(total: int, desc: str, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="frame", file=sys.stderr, dynamic_ncols=True, leave=False)
+
+
+def run_many(
+    trackers: Seq,
+    sequence: Sequence,
+    observers: Iterable = (),
+    max_frames: int | None = None,
+    progress: bool = False,
+    seeds: Seq[int | None] | None = None,
+) -> list[RunResult]:
+    """Run several trackers side by side on the same frames (each frame read once).
+
+    Parameters
+    ----------
+    trackers : sequence of Tracker
+    sequence : Sequence
+    observers : iterable
+        Objects with optional ``on_start(sequence, trackers)``,
+        ``on_frame(frame, records)`` (one record per tracker, in order) and
+        ``on_end(results)``.
+    max_frames : int, optional
+        Stop after this many frames (including the first).
+    progress : bool
+        Show a progress bar on stderr.
+    seeds : sequence of int, optional
+        Seeds to write into the results (one per tracker).
+
+    Returns
+    -------
+    list of RunResult, one per tracker.
+    """
+    observers = list(observers)
+    n = len(sequence) if max_frames is None else min(len(sequence), int(max_frames))
+    if n < 1:
+        raise ValueError("nothing to track: the sequence has no frames (or --max-frames is 0)")
+    k = len(trackers)
+    boxes = np.full((k, n, 4), np.nan)
+    times = np.zeros((k, n))
+    gt = np.full((n, 4), np.nan)
+    seeds = list(seeds) if seeds is not None else [None] * k
+    for ob in observers:
+        if hasattr(ob, "on_start"):
+            ob.on_start(sequence, trackers)
+    done = 0
+    interrupted = False
+    bar = _progress(n, f"{sequence.name}", progress)
+    try:
+        for i in range(n):
+            frame = sequence.frame(i)
+            if frame.gt is not None:
+                gt[i] = frame.gt
+            records = []
+            for j, tr in enumerate(trackers):
+                t0 = time.perf_counter()
+                if i == 0:
+                    tr.init(frame.image, sequence.init_box)
+                    box = np.asarray(sequence.init_box, dtype=np.float64)
+                else:
+                    box = np.asarray(tr.update(frame.image), dtype=np.float64)
+                times[j, i] = time.perf_counter() - t0
+                boxes[j, i] = box
+                rec = tr.last_record
+                if rec is None:
+                    rec = FrameRecord(index=i, box=box, tracker=tr.name)
+                records.append(rec)
+            done = i + 1
+            for ob in observers:
+                if hasattr(ob, "on_frame"):
+                    ob.on_frame(frame, records)
+            if bar is not None:
+                bar.update(1)
+                if i % 10 == 0:
+                    tot = times[:, 1 : i + 1].sum()
+                    if tot > 0:
+                        bar.set_postfix(fps=f"{k * i / tot:.0f}")
+    except BaseException:
+        interrupted = True
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+        results = [
+            RunResult(
+                sequence=sequence.name,
+                tracker=tr.name,
+                seed=seeds[j],
+                boxes=boxes[j, :done],
+                times=times[j, :done],
+                groundtruth=gt[:done],
+                config=tr.config_dict() if hasattr(tr, "config_dict") else {},
+                interrupted=interrupted,
+            )
+            for j, tr in enumerate(trackers)
+        ]
+        for ob in observers:
+            if hasattr(ob, "on_end"):
+                ob.on_end(results)
+    return results
+
+
+def run(tracker, sequence: Sequence, observers: Iterable = (), max_frames=None, progress=False, seed=None):
+    """Run one tracker over a sequence; see :func:`run_many`. Returns a :class:`RunResult`."""
+    return run_many([tracker], sequence, observers, max_frames, progress, seeds=[seed])[0]
