@@ -24,7 +24,7 @@ import numpy as np
 from covviz.records import FrameRecord, RunResult
 from covviz.sequences import Frame, Sequence
 
-__all__ = ["Observer", "run", "run_many"]
+__all__ = ["Observer", "ResultCollector", "run", "run_many"]
 
 
 class Observer:
@@ -38,6 +38,16 @@ class Observer:
 
     def on_end(self, results: Seq[RunResult]) -> None:  # pragma: no cover
         pass
+
+
+class ResultCollector(Observer):
+    """Keeps the results handed to ``on_end`` (also after an interruption)."""
+
+    def __init__(self) -> None:
+        self.results: list[RunResult] = []
+
+    def on_end(self, results: Seq[RunResult]) -> None:
+        self.results = list(results)
 
 
 def _progress(total: int, desc: str, enabled: bool):

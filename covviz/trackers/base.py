@@ -102,3 +102,8 @@ class IdentityTracker:
         self._index += 1
         self.last_record = FrameRecord(index=self._index, box=self._box.copy(), tracker=self.name)
         return self._box.copy()
+
+
+def make_identity(n_particles=None, rng=None) -> IdentityTracker:
+    """Factory for the tracker registry."""
+    return IdentityTracker()

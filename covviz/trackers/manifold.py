@@ -304,3 +304,9 @@ class ManifoldTracker:
             extras={"modes": modes, "velocity": est_state[2:4]},
         )
         return box
+
+
+def make(n_particles: int | None = None, rng=None) -> ManifoldTracker:
+    """Factory for the tracker registry: defaults, optionally another particle count."""
+    cfg = ManifoldConfig() if n_particles is None else ManifoldConfig(n_particles=n_particles)
+    return ManifoldTracker(cfg, rng)
