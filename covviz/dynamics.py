@@ -3,8 +3,9 @@
 Kinematics. The state of a particle is ``s = [x, y, vx, vy, scale, theta]``
 (centre in pixels, velocity in pixels per frame, scale relative to the initial
 box, rotation in radians). It moves by a near-constant-velocity linear model
-``s_t = A s_{t-1} + u_t`` with ``x += vx``, ``y += vy`` and the velocity damped
-by ``velocity_decay``; scale is updated multiplicatively (``scale *= exp(u)``),
+``s_t = A s_{t-1} + u_t``: the velocity is damped by ``velocity_decay`` and
+perturbed first, then moves the centre (``v_t = a·v_{t-1} + u_v``,
+``x_t = x_{t-1} + v_t + u_x``); scale is updated multiplicatively (``scale *= exp(u)``),
 the first-order equivalent of an additive step that can never turn negative.
 The noise ``u_t`` comes from two interacting Gaussian modes: every particle,
 every frame, draws mode 0 (small, everyday motion) with probability 0.9 or
@@ -63,12 +64,14 @@ class KinematicModel:
 
     def __post_init__(self):
         p = self.mode_probs
-        if len(p) != 2 or min(p) < 0 or abs(sum(p) - 1) > 1e-9:
+        if len(p) != 2 or not np.all(np.isfinite(p)) or min(p) < 0 or abs(sum(p) - 1) > 1e-9:
             raise ValueError(f"mode_probs must be two probabilities summing to 1, got {p}")
         for name in ("pos_sigma", "vel_sigma", "scale_sigma", "rot_sigma"):
             v = getattr(self, name)
-            if len(v) != 2 or min(v) < 0:
+            if len(v) != 2 or not np.all(np.isfinite(v)) or min(v) < 0:
                 raise ValueError(f"{name} must be two non-negative numbers (mode 0, mode 1), got {v}")
+        if not self.max_rotation > 0:
+            raise ValueError(f"max_rotation must be positive (radians), got {self.max_rotation}")
         if not 0 <= self.velocity_decay <= 1:
             raise ValueError(f"velocity_decay must be in [0, 1], got {self.velocity_decay}")
         lo, hi = self.scale_range

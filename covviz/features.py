@@ -93,8 +93,9 @@ def sample_grid(poses, base_wh, size: int = 32, border: int = 1, step: float = 1
     base_wh : (float, float)
         Width and height of the region at scale 1, pixels.
     size, border : int
-    step : float
-        The image was downsampled by this factor (coordinates are divided by it).
+    step : float or (float, float)
+        The image was downsampled by this factor (coordinates are divided by
+        it); a pair gives the x and y factors separately.
 
     Returns
     -------
@@ -112,8 +113,10 @@ def sample_grid(poses, base_wh, size: int = 32, border: int = 1, step: float = 1
     ox, oy = sw * qx, sh * qy
     X = p[:, 0, None, None] + c[:, None, None] * ox - s[:, None, None] * oy
     Y = p[:, 1, None, None] + s[:, None, None] * ox + c[:, None, None] * oy
-    inv = 1.0 / step
-    return (X * inv - 0.5).astype(np.float32).reshape(-1, g, g), (Y * inv - 0.5).astype(np.float32).reshape(-1, g, g)
+    sx, sy = (step, step) if np.isscalar(step) else step
+    mx = (X * (1.0 / sx) - 0.5).astype(np.float32).reshape(-1, g, g)
+    my = (Y * (1.0 / sy) - 0.5).astype(np.float32).reshape(-1, g, g)
+    return mx, my
 
 
 def warp_patches(gray: np.ndarray, poses, base_wh, size: int = 32, border: int = 1, step: float = 1.0):

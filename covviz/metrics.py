@@ -59,9 +59,7 @@ def valid_rows(gt: np.ndarray) -> np.ndarray:
 
 def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Intersection over union of paired boxes, shape ``(n,)``; 0 where a box is empty."""
-    a, b = _boxes(a, "a"), _boxes(b, "b")
-    if a.shape != b.shape:
-        raise ValueError(f"box arrays differ in shape: {a.shape} vs {b.shape}")
+    a, b = _pair(a, b)
     x1 = np.maximum(a[:, 0], b[:, 0])
     y1 = np.maximum(a[:, 1], b[:, 1])
     x2 = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2])
@@ -72,12 +70,20 @@ def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     ) - inter
     with np.errstate(invalid="ignore", divide="ignore"):
         out = np.where(union > 0, inter / union, 0.0)
-    return np.nan_to_num(out, nan=0.0)
+    # Rounding can push inter/union of identical boxes a hair above 1.
+    return np.clip(np.nan_to_num(out, nan=0.0), 0.0, 1.0)
+
+
+def _pair(a, b, na: str = "a", nb: str = "b") -> tuple[np.ndarray, np.ndarray]:
+    a, b = _boxes(a, na), _boxes(b, nb)
+    if a.shape != b.shape:
+        raise ValueError(f"box arrays differ in shape: {a.shape} vs {b.shape}")
+    return a, b
 
 
 def center_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Euclidean distance between box centres, pixels, shape ``(n,)``."""
-    a, b = _boxes(a, "a"), _boxes(b, "b")
+    a, b = _pair(a, b)
     ca = a[:, :2] + a[:, 2:] / 2
     cb = b[:, :2] + b[:, 2:] / 2
     return np.hypot(*(ca - cb).T)
@@ -85,7 +91,7 @@ def center_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def normalized_center_error(boxes: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """The paper's per-axis normalised errors ``(|e_x|/W_gt, |e_y|/H_gt)``, shape ``(n, 2)``."""
-    boxes, gt = _boxes(boxes, "boxes"), _boxes(gt, "gt")
+    boxes, gt = _pair(boxes, gt, "boxes", "gt")
     e = np.abs((boxes[:, :2] + boxes[:, 2:] / 2) - (gt[:, :2] + gt[:, 2:] / 2))
     return e / gt[:, 2:]
 

@@ -75,6 +75,10 @@ class ManifoldConfig:
     antialias : bool
         Downsample the frame (area averaging) when the target is more than
         ~2 pixels per patch sample, so that the 32×32 warp does not alias.
+    smooth_sigma : float
+        Gaussian pre-smoothing of the frame (pixels of the possibly
+        downsampled frame) before warping: tames sensor noise in the
+        derivative features. 0 disables it.
     """
 
     n_particles: int = 600
@@ -87,8 +91,15 @@ class ManifoldConfig:
     resample_threshold: float = 0.5
     resampling: str = "systematic"
     antialias: bool = True
+    smooth_sigma: float = 1.0
 
     def __post_init__(self):
+        for name in ("likelihood_sigma", "template_sigma", "eps", "smooth_sigma", "resample_threshold"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not np.isfinite(v):
+                raise ValueError(f"{name} must be a finite number, got {v!r}")
+        if not isinstance(self.n_particles, (int, np.integer)):
+            raise ValueError(f"n_particles must be an integer, got {self.n_particles!r}")
         if self.n_particles < 2:
             raise ValueError(f"n_particles must be at least 2, got {self.n_particles}")
         if not self.likelihood_sigma > 0:
@@ -105,6 +116,8 @@ class ManifoldConfig:
             raise ValueError(f"eps must be positive (it keeps descriptors SPD), got {self.eps}")
         if not 0 <= self.resample_threshold <= 1:
             raise ValueError(f"resample_threshold must be in [0, 1], got {self.resample_threshold}")
+        if self.smooth_sigma < 0:
+            raise ValueError(f"smooth_sigma must be non-negative, got {self.smooth_sigma}")
         if self.resampling not in ("systematic", "multinomial"):
             raise ValueError(f"resampling must be 'systematic' or 'multinomial', got {self.resampling!r}")
 
@@ -182,6 +195,8 @@ class ManifoldTracker:
             g = cv2.resize(
                 g, (max(1, round(W / self._step)), max(1, round(H / self._step))), interpolation=cv2.INTER_AREA
             )
+        if self.config.smooth_sigma > 0:
+            g = cv2.GaussianBlur(g, (0, 0), self.config.smooth_sigma)
         return g
 
     def _observe(self, gray: np.ndarray, poses: np.ndarray, timings: dict | None = None) -> np.ndarray:
@@ -210,8 +225,9 @@ class ManifoldTracker:
         per_sample = min(w, h) / cfg.patch_size
         self._step = int(per_sample // 2) if (cfg.antialias and per_sample >= 4) else 1
         gray = self._prepare(frame)
-        # Exact factor of the resize (rounding of the downsampled size).
-        self._step_exact = (frame.shape[1] / gray.shape[1]) if self._step > 1 else 1.0
+        # Exact x and y factors of the resize (the downsampled size is rounded).
+        H, W = np.shape(frame)[:2]
+        self._step_exact = (W / gray.shape[1], H / gray.shape[0]) if self._step > 1 else 1.0
         pose = np.array([[x + w / 2, y + h / 2, 1.0, 0.0]])
         C0 = self._observe(gray, pose)
         L0 = logm(C0)[0]

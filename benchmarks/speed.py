@@ -1,0 +1,111 @@
+"""Speed of the trackers' update(), side by side in one process.
+
+Prints, for the manifold tracker at 300 / 600 / 1000 particles, the mean
+per-frame time of ``update()`` broken down by stage (propagate, warp, features,
+covariance, distances, weights, resample), its frames per second, and the ratio
+to OpenCV's CSRT (and the IPCA baseline, when available) run on the same
+frames in the same process. Frames are decoded once, before timing.
+
+Usage::
+
+    python benchmarks/speed.py                       # the synthetic 320x240 default
+    python benchmarks/speed.py ../shared/sequences/Car1 --frames 200
+    python benchmarks/speed.py --threads 1           # pin BLAS/OpenCV to one thread
+
+These machines are noisy: compare ratios measured side by side in one run, and
+use ``--repeat`` to take the best of several passes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+
+def _set_threads(n: int | None) -> None:
+    if n is None:
+        return
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = str(n)
+
+
+def time_tracker(make, frames, box, repeat: int):
+    """Best-of-``repeat`` mean update() time (s) and mean stage timings (s)."""
+    best, best_stages = np.inf, {}
+    for _ in range(repeat):
+        tr = make()
+        tr.init(frames[0], box)
+        stages: dict[str, float] = {}
+        t0 = time.perf_counter()
+        for f in frames[1:]:
+            tr.update(f)
+            rec = tr.last_record
+            if rec is not None:
+                for k, v in rec.timings.items():
+                    stages[k] = stages.get(k, 0.0) + v
+        dt = (time.perf_counter() - t0) / (len(frames) - 1)
+        if dt < best:
+            best, best_stages = dt, {k: v / (len(frames) - 1) for k, v in stages.items()}
+    return best, best_stages
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("sequence", nargs="?", default=None, help="sequence (default: the synthetic 320x240 one)")
+    ap.add_argument("--frames", type=int, default=150, help="frames to time (default 150)")
+    ap.add_argument("--particles", default="300,600,1000", help="particle counts (default 300,600,1000)")
+    ap.add_argument("--repeat", type=int, default=2, help="passes per tracker; the best is kept (default 2)")
+    ap.add_argument("--threads", type=int, default=None, help="limit BLAS threads (default: library default)")
+    args = ap.parse_args(argv)
+    _set_threads(args.threads)
+
+    import cv2
+
+    from covviz.sequences import open_sequence
+    from covviz.trackers import make_tracker
+    from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
+
+    if args.threads is not None:
+        cv2.setNumThreads(args.threads)
+    seq = open_sequence(args.sequence)
+    n = min(args.frames + 1, len(seq))
+    frames = [seq.frame(i).image for i in range(n)]
+    box = seq.init_box
+    H, W = frames[0].shape[:2]
+    print(f"sequence {seq.name}: {W}x{H}, {n - 1} timed frames, best of {args.repeat}; "
+          f"{os.cpu_count()} cpus, OpenCV threads {cv2.getNumThreads()}")
+
+    peers = {}
+    for name in ("csrt", "ipca"):
+        try:
+            make = lambda name=name: make_tracker(name, rng=0)  # noqa: E731
+            make()
+        except (ImportError, ValueError, AttributeError) as exc:
+            print(f"  ({name} unavailable: {exc})")
+            continue
+        peers[name] = time_tracker(make, frames, box, args.repeat)[0]
+
+    stage_names = ("propagate", "warp", "features", "covariance", "distances", "weights", "resample")
+    header = f"{'particles':>9} {'ms/frame':>9} {'fps':>7} " + " ".join(f"{s:>10}" for s in stage_names)
+    header += "".join(f" {'x ' + p:>8}" for p in peers)
+    print("\nmanifold tracker, mean ms per update() by stage")
+    print(header)
+    for k in (int(v) for v in args.particles.split(",")):
+        dt, st = time_tracker(lambda k=k: ManifoldTracker(ManifoldConfig(n_particles=k), rng=0), frames, box,
+                              args.repeat)
+        row = f"{k:>9} {1e3 * dt:>9.2f} {1 / dt:>7.1f} " + " ".join(
+            f"{1e3 * st.get(s, 0):>10.2f}" for s in stage_names)
+        row += "".join(f" {pt / dt:>8.2f}" for pt in peers.values())
+        print(row)
+    for p, pt in peers.items():
+        print(f"{p}: {1e3 * pt:.2f} ms/frame, {1 / pt:.1f} fps")
+    print("\n'x csrt' = CSRT's time / manifold's time on the same frames (>1: manifold is faster).")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
