@@ -54,10 +54,13 @@ def covariance(features: np.ndarray, eps: float = DEFAULT_EPS) -> np.ndarray:
     return regularize(C, eps) if eps > 0 else C
 
 
-def descriptors(gray: np.ndarray, poses, base_wh, size: int = 32, eps: float = DEFAULT_EPS, step: float = 1.0):
+def descriptors(
+    gray: np.ndarray, poses, base_wh, size: int = 32, eps: float = DEFAULT_EPS, step=1.0, gain_normalize: bool = False
+):
     """Covariance descriptors of the regions of a batch of poses, ``(n, 9, 9)``.
 
     Warps each region to ``size x size`` (:func:`~covviz.features.warp_patches`),
     computes the 9 features and their regularised covariance.
     """
-    return covariance(patch_features(warp_patches(gray, poses, base_wh, size, 1, step)), eps)
+    P = warp_patches(gray, poses, base_wh, size, 1, step)
+    return covariance(patch_features(P, gain_normalize=gain_normalize), eps)

@@ -148,13 +148,18 @@ def warp_patches(gray: np.ndarray, poses, base_wh, size: int = 32, border: int =
     return out.reshape(n, g, g)
 
 
-def patch_features(patches: np.ndarray, border: int = 1) -> np.ndarray:
+def patch_features(patches: np.ndarray, border: int = 1, gain_normalize: bool = False) -> np.ndarray:
     """The 9 per-pixel features of the interior of each patch.
 
     Parameters
     ----------
     patches : ndarray, shape (n, S + 2, S + 2), float32
         Warped patches with a one-pixel border (``border`` must be 1).
+    gain_normalize : bool
+        Divide the intensity and derivative features of each patch by its mean
+        intensity, which makes the descriptor invariant to a multiplicative
+        illumination change ``I -> g·I`` (the paper's features are not: a gain
+        rescales six of the nine, all but ``x, y`` and the angle).
 
     Returns
     -------
@@ -181,6 +186,10 @@ def patch_features(patches: np.ndarray, border: int = 1) -> np.ndarray:
     u = (np.arange(S, dtype=np.float32) + 0.5) / S - 0.5
     F[0] = u[None, None, :] * k[0]
     F[1] = u[None, :, None] * k[1]
+    if gain_normalize:
+        # Mean of the interior; the floor keeps black patches finite.
+        g = P[:, 1:-1, 1:-1].mean(axis=(1, 2), keepdims=True)
+        P = P * (1.0 / np.maximum(g, 1e-3))
     C = P[:, 1:-1, 1:-1]
     np.subtract(C, C.mean(axis=(1, 2), keepdims=True), out=F[2])
     F[2] *= k[2]
@@ -192,7 +201,10 @@ def patch_features(patches: np.ndarray, border: int = 1) -> np.ndarray:
     F[3] *= 0.5 * k[3]
     F[4] *= 0.5 * k[4]
     # sqrt(Ix² + Iy²) (k[3] == k[4] == k[5], so the scaled magnitude is exact).
-    cv2.magnitude(F[3].reshape(n * S, S), F[4].reshape(n * S, S), F[5].reshape(n * S, S))
+    # Not cv2.magnitude: called from concurrent threads its results vary in the last bit.
+    np.multiply(F[3], F[3], out=F[5])
+    F[5] += F[4] * F[4]
+    np.sqrt(F[5], out=F[5])
     # atan(|Ix| / |Iy|) in [0, pi/2], defined where Iy == 0.
     np.arctan2(F[3], F[4], out=F[6])
     F[6] *= k[6]

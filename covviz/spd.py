@@ -90,9 +90,12 @@ def check_spd(A: np.ndarray, name: str = "A") -> np.ndarray:
 
 
 def _eig_apply(A: np.ndarray, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
-    """Apply ``fn`` to the eigenvalues of symmetric ``A`` and rebuild ``V f(w) V^T``."""
+    """Apply ``fn`` to the eigenvalues of symmetric ``A`` and rebuild ``V f(w) V^T``.
+
+    The result is symmetrised, so it is exactly symmetric (not only to rounding).
+    """
     w, V = np.linalg.eigh(A)
-    return (V * fn(w)[..., None, :]) @ np.swapaxes(V, -1, -2)
+    return sym((V * fn(w)[..., None, :]) @ np.swapaxes(V, -1, -2))
 
 
 def _positive(w: np.ndarray) -> np.ndarray:
