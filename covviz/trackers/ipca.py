@@ -718,3 +718,9 @@ class IPCATracker:
             extras=self._extras(states[best]),
         )
         return box.copy()
+
+
+def make(n_particles: int | None = None, rng=None) -> IPCATracker:
+    """Factory for the tracker registry: defaults, optionally another particle count."""
+    cfg = IPCAConfig() if n_particles is None else IPCAConfig(n_particles=n_particles)
+    return IPCATracker(cfg, rng)
