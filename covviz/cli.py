@@ -3,6 +3,10 @@
 Subcommands::
 
     covviz track [SEQUENCE]   run tracker(s) on a sequence, print metrics, save boxes + JSON
+    covviz bench ROOT         every tracker on every sequence under ROOT, resumable, then a report
+    covviz report DIR         rebuild a bench's markdown report and figures from its result files
+    covviz mds [SEQUENCE]     the paper's manifold figures (MDS), as a recording and PNGs
+    covviz snapshot RRD       a PNG of a recording in the headless Rerun viewer, at a chosen frame
 
 Exit codes: 0 success, 1 unexpected error, 2 bad input (the one-line message
 says what to fix), 130 interrupted.
@@ -19,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from covviz.bench import add_bench_parser, add_report_parser
 from covviz.metrics import evaluate
 from covviz.sequences import SequenceError, open_sequence
 
@@ -56,6 +61,16 @@ def positive_int(text: str) -> int:
     return v
 
 
+def nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
+    return v
+
+
 def tracker_list(text: str) -> list[str]:
     from covviz.trackers import TRACKERS
 
@@ -77,6 +92,11 @@ examples:
   covviz track ../shared/sequences/Car4 --seed 1 # an OTB folder
   covviz track clip.mp4 --box 120,80,40,60       # a video (or 'frames/*.png'): give the first box
   covviz track Car4 --trackers manifold,ipca     # several trackers side by side on the same frames
+  covviz track Couple --spawn                    # watch it live in a Rerun viewer (and save it)
+  covviz track --mds-every 5 --save my.rrd       # denser template-cloud pictures, another file
+
+Every run writes a Rerun recording (default recordings/SEQUENCE-TRACKERS-sSEED.rrd;
+--no-save to skip); open it with 'rerun FILE.rrd'.
 
 Boxes are x,y,w,h in pixels. --box is 0-based (as an image viewer shows them);
 OTB ground-truth and result files are 1-based, as the OTB toolkit expects.
@@ -114,8 +134,137 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
     p.add_argument("--out", type=Path, default=Path("runs"), help="results folder (default: runs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_recording_args(p)
     p.set_defaults(func=cmd_track)
     return p
+
+
+# Rerun options in the style of rr.script_add_args, as our own flags: several sinks at once
+# (a file and a viewer), and no --headless/--stdout, which do not fit a tracking run.
+def add_recording_args(p: argparse.ArgumentParser, mds_options: bool = True) -> None:
+    g = p.add_argument_group("recording (Rerun)")
+    g.add_argument(
+        "--save",
+        type=Path,
+        metavar="PATH",
+        help="write the recording to this .rrd file (default: recordings/SEQUENCE-TRACKERS-sSEED.rrd)",
+    )
+    g.add_argument("--no-save", action="store_true", help="write no recording file")
+    v = g.add_mutually_exclusive_group()
+    v.add_argument("--spawn", action="store_true", help="also stream to a new Rerun viewer window")
+    v.add_argument(
+        "--connect",
+        nargs="?",
+        const=True,
+        default=None,
+        metavar="URL",
+        help="also stream to a running viewer (default URL rerun+http://127.0.0.1:9876/proxy)",
+    )
+    v.add_argument("--serve-web", action="store_true", help="also host a web viewer and stream to it")
+    if mds_options:
+        g.add_argument(
+            "--mds-every",
+            type=nonneg_int,
+            default=10,
+            metavar="K",
+            help="MDS picture of the template cloud every K frames (default 10; 0: never)",
+        )
+        g.add_argument(
+            "--likelihood-every",
+            type=nonneg_int,
+            default=None,
+            metavar="K",
+            help="likelihood map around the estimate every K frames (default: as --mds-every; 0: never)",
+        )
+
+
+#: Upper estimate of recording bytes per frame and tracker (600 particles, 320x240: ~28 KB measured).
+RECORDING_BYTES_PER_FRAME = 40_000
+#: Free space kept on top of the estimate.
+RECORDING_MARGIN_BYTES = 20_000_000
+
+
+def _check_recording_path(path: Path, n_frames: int, n_trackers: int) -> None:
+    """Fail before tracking if the recording cannot be written (one-line UsageError)."""
+    import shutil
+
+    if path.suffix != ".rrd":
+        raise UsageError(f"--save {path}: a recording file must end in .rrd")
+    if path.is_dir():
+        raise UsageError(f"--save {path}: is a folder; give a file name ending in .rrd")
+    parent = path.parent if str(path.parent) else Path(".")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        probe = parent / f".covviz-write-test-{path.stem}"
+        with open(probe, "wb") as fh:
+            fh.write(b"\0" * 65536)
+            fh.flush()
+        probe.unlink()
+        if path.exists():
+            with open(path, "ab"):
+                pass
+    except OSError as exc:
+        raise UsageError(
+            f"cannot write the recording {path}: {exc.strerror or exc}; choose another --save or --no-save"
+        ) from None
+    need = n_frames * max(1, n_trackers) * RECORDING_BYTES_PER_FRAME + RECORDING_MARGIN_BYTES
+    free = shutil.disk_usage(parent).free
+    if free < need:
+        raise UsageError(
+            f"not enough free space for the recording in {parent}: about {need / 1e6:.0f} MB needed, "
+            f"{free / 1e6:.0f} MB free; free some space, choose another --save, or --no-save"
+        )
+
+
+def _check_viewer(args) -> None:
+    """``--connect``: fail before the work starts if no viewer listens at the URL."""
+    if not getattr(args, "connect", None):
+        return
+    from covviz.viz.logger import DEFAULT_VIEWER_URL, viewer_reachable
+
+    url = DEFAULT_VIEWER_URL if args.connect is True else str(args.connect)
+    if not viewer_reachable(url):
+        raise UsageError(f"--connect: no viewer listens at {url}; start one with 'rerun', or use --spawn")
+
+
+def default_recording_path(sequence_name: str, trackers: list[str], seed: int) -> Path:
+    """``recordings/<sequence>-<tracker+tracker>-s<seed>.rrd``."""
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in sequence_name) or "sequence"
+    return Path("recordings") / f"{safe}-{'+'.join(trackers)}-s{seed}.rrd"
+
+
+def _recording_observers(args, seq, n_frames: int) -> tuple[list, Path | None]:
+    """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file."""
+    save = None if args.no_save else (args.save or default_recording_path(seq.name, args.trackers, args.seed))
+    if args.no_save and args.save is not None:
+        raise UsageError("--save and --no-save contradict each other; give one")
+    live = bool(args.spawn or args.connect or args.serve_web)
+    if save is None and not live:
+        return [], None
+    if save is not None:
+        _check_recording_path(save, n_frames, len(args.trackers))
+    _check_viewer(args)
+    from covviz.viz.logger import (
+        BATCH_SECONDS,
+        BATCH_SECONDS_LIVE,
+        LoggerConfig,
+        RerunLogger,
+        attach_sinks,
+        new_recording,
+    )
+
+    config = LoggerConfig(mds_every=args.mds_every, likelihood_every=args.likelihood_every, seed=args.seed)
+    stream = new_recording(batch_seconds=BATCH_SECONDS_LIVE if live else BATCH_SECONDS)
+    attach_sinks(stream, save=save, spawn=args.spawn, connect=args.connect, serve_web=args.serve_web)
+    info = {
+        "name": f"{seq.name} · {'+'.join(args.trackers)} · seed {args.seed}",
+        "command": "covviz " + " ".join(getattr(args, "argv", sys.argv[1:])),
+        "seed": args.seed,
+        "trackers": args.trackers,
+        "max_frames": args.max_frames,
+        "particles": args.particles,
+    }
+    return [RerunLogger(stream, config, run_info=info)], save
 
 
 def _check_out_dir(out: Path) -> None:
@@ -146,8 +295,11 @@ def cmd_track(args) -> int:
         make_tracker(name, rng=np.random.default_rng(s), n_particles=args.particles)
         for name, s in zip(args.trackers, seeds)
     ]
+    # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
+    n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
+    recorders, rrd = _recording_observers(args, seq, n_frames)
     collector = ResultCollector()
-    observers = [*getattr(args, "observers", []), collector]
+    observers = [*getattr(args, "observers", []), *recorders, collector]
     t0 = time.perf_counter()
     interrupted = False
     try:
@@ -159,10 +311,22 @@ def cmd_track(args) -> int:
             progress=not args.no_progress,
             seeds=[args.seed] * len(trackers),
         )
+    except Exception:
+        # An error inside a tracker: keep what was done (the recording already
+        # holds those frames), then report the error.
+        done = collector.results
+        if done and len(done[0].boxes) > 1:
+            for res in done:
+                save_result(res, args.out)
+            log.warning("results of the %d frames before the error are in %s/%s/", len(done[0].boxes), args.out,
+                        seq.name)
+        raise
     except KeyboardInterrupt:
         interrupted = True
         results = collector.results
         log.warning("interrupted: the results hold the %d frames done so far", len(results[0].boxes) if results else 0)
+        if rrd is not None:
+            print(f"recording (up to the interruption) in {rrd}   open it with: rerun {rrd}")
         if not results or not len(results[0].boxes):
             return EXIT_INTERRUPTED
     wall = time.perf_counter() - t0
@@ -177,7 +341,168 @@ def cmd_track(args) -> int:
             f"mean IoU {m['mean_iou']:.3f}   ({m['n_skipped']} frames without ground truth skipped)"
         )
     print(f"results in {args.out}/{seq.name}/  ({wall:.1f} s wall)")
+    if rrd is not None and not interrupted:
+        print(f"recording in {rrd}   open it with: rerun {rrd}")
     return EXIT_INTERRUPTED if interrupted else 0
+
+
+# --------------------------------------------------------------------------- #
+# mds
+# --------------------------------------------------------------------------- #
+MDS_EPILOG = """\
+examples:
+  covviz mds                                       # the synthetic default (frames 1, 101, 201)
+  covviz mds ../shared/sequences/Car4              # frames 1, 101, 201, 501 of Car4
+  covviz mds Car4 --frames 1,51,101 --png-dir docs/img
+
+Writes recordings/SEQUENCE-mds.rrd (open with 'rerun FILE') and two PNGs:
+SEQUENCE-mds-separation.png (target vs background) and SEQUENCE-mds-random-walk.png.
+"""
+
+
+def frame_list(text: str) -> tuple[int, ...]:
+    try:
+        vals = tuple(int(v) for v in text.replace(" ", ",").split(",") if v)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--frames must be 1-based frame numbers like 1,101,201; got {text!r}") from None
+    if not vals or min(vals) < 1:
+        raise argparse.ArgumentTypeError(f"--frames must be 1-based frame numbers like 1,101,201; got {text!r}")
+    return vals
+
+
+def add_mds_parser(sub) -> argparse.ArgumentParser:
+    from covviz.viz.mds_figures import DEFAULT_FRAMES
+
+    p = sub.add_parser(
+        "mds",
+        help="the paper's manifold figures (MDS of Riemannian distances)",
+        description="Reproduce the paper's figures: (a) target vs background descriptors over the sequence "
+        "on the covariance manifold, (b) the random walk of the templates at chosen frames; "
+        "both by MDS of Riemannian distance matrices. Writes a recording and PNGs.",
+        epilog=MDS_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("sequence", nargs="?", default=None, help="as for 'covviz track' (default: synthetic)")
+    p.add_argument("--box", type=parse_box, help="initial box x,y,w,h (0-based px) for videos and globs")
+    p.add_argument(
+        "--frames",
+        type=frame_list,
+        default=DEFAULT_FRAMES,
+        metavar="F[,F…]",
+        help="1-based frames of the random-walk figure (default 1,101,201,501,801 as far as the sequence goes)",
+    )
+    p.add_argument("--max-target", type=positive_int, default=150, metavar="N",
+                   help="at most N target descriptors in figure (a) (default 150)")
+    p.add_argument("--n-background", type=positive_int, default=3, metavar="N",
+                   help="background regions per sampled frame (default 3)")
+    p.add_argument("--method", choices=("classical", "smacof"), default="classical",
+                   help="MDS: classical (default) or SMACOF (started from the classical solution)")
+    p.add_argument("--particles", type=positive_int, help="particles of the tracker for figure (b)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--png-dir", type=Path, default=Path("recordings"), help="folder for the PNGs (default recordings/)")
+    p.add_argument("--no-png", action="store_true", help="write no PNGs")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_recording_args(p, mds_options=False)
+    p.set_defaults(func=cmd_mds)
+    return p
+
+
+def cmd_mds(args) -> int:
+    from covviz.viz.mds_figures import MDSFiguresConfig, random_walk_data, separation_data
+
+    seq = open_sequence(args.sequence, box=args.box)
+    if len(seq) < 2:
+        raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
+    cfg = MDSFiguresConfig(
+        frames=tuple(args.frames),
+        max_target=max(2, args.max_target),
+        n_background=args.n_background,
+        method=args.method,
+        seed=args.seed,
+        n_particles=args.particles,
+    )
+    if args.no_save and args.save is not None:
+        raise UsageError("--save and --no-save contradict each other; give one")
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in seq.name) or "sequence"
+    save = None if args.no_save else (args.save or Path("recordings") / f"{safe}-mds.rrd")
+    if save is not None:
+        _check_recording_path(save, 10, 1)
+    _check_viewer(args)
+    if not args.no_png:
+        _check_out_dir(args.png_dir)
+    progress = not args.no_progress
+    sep = separation_data(seq, cfg, progress=progress)
+    walk = random_walk_data(seq, cfg, progress=progress)
+    if save is not None or args.spawn or args.connect or args.serve_web:
+        from covviz.viz.blueprint import mds_blueprint
+        from covviz.viz.logger import attach_sinks, new_recording
+        from covviz.viz.mds_figures import log_figures
+
+        stream = new_recording()
+        attach_sinks(stream, save=save, spawn=args.spawn, connect=args.connect, serve_web=args.serve_web)
+        stream.send_blueprint(mds_blueprint())
+        stream.send_recording_name(f"{safe} · MDS figures")
+        log_figures(stream, sep, walk, seq.name)
+        stream.flush(timeout_sec=30.0)
+        stream.disconnect()
+        if save is not None:
+            print(f"recording in {save}   open it with: rerun {save}")
+    if not args.no_png:
+        from covviz.viz.mds_figures import save_pngs
+
+        for path in save_pngs(sep, walk, args.png_dir, safe):
+            print(f"figure: {path}")
+    n_t = int((sep.kinds == "target").sum())
+    frames = sorted({int(f) for f in walk.frames})
+    print(f"{seq.name}: {n_t} target and {len(sep.kinds) - n_t} background descriptors; "
+          f"templates at frames {', '.join(map(str, frames))}")
+    return 0
+
+
+# --------------------------------------------------------------------------- #
+# snapshot
+# --------------------------------------------------------------------------- #
+SNAPSHOT_EPILOG = """\
+examples:
+  covviz snapshot recordings/synthetic-manifold-s0.rrd --frame 120 --out shot.png
+  covviz snapshot run.rrd --size 1920x1080            # the last frame
+
+Needs a Vulkan driver for the headless viewer: apt-get install -y mesa-vulkan-drivers libvulkan1
+"""
+
+
+def add_snapshot_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "snapshot",
+        help="a PNG of a recording in the headless Rerun viewer",
+        description="Open a recording in the real Rerun viewer, headless (software rendering), go to a frame "
+        "and save a screenshot of the whole window with the recording's own layout.",
+        epilog=SNAPSHOT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("recording", type=Path, help="an .rrd file")
+    p.add_argument("--frame", type=nonneg_int, help="frame to show (default: the last)")
+    p.add_argument("--out", type=Path, default=Path("shot.png"), help="PNG to write (default shot.png)")
+    p.add_argument("--size", default="1600x900", help="window size WxH in points (default 1600x900)")
+    p.add_argument("--timeline", default="frame", help="timeline of --frame (default 'frame')")
+    p.add_argument("--timeout", type=float, default=60.0, help="seconds to wait for the viewer (default 60)")
+    p.set_defaults(func=cmd_snapshot)
+    return p
+
+
+def cmd_snapshot(args) -> int:
+    from covviz.viz.snapshot import SnapshotError, parse_size, snapshot
+
+    if not args.recording.is_file():
+        raise UsageError(f"{args.recording}: no such recording")
+    size = parse_size(args.size)
+    try:
+        out = snapshot(args.recording, args.out, frame=args.frame, size=size, timeline=args.timeline,
+                       timeout=args.timeout)
+    except SnapshotError as exc:
+        raise UsageError(str(exc)) from None
+    print(f"screenshot: {out}")
+    return 0
 
 
 # --------------------------------------------------------------------------- #
@@ -188,17 +513,33 @@ def build_parser() -> argparse.ArgumentParser:
         prog="covviz",
         description="A tracker on the Riemannian manifold of covariance matrices, "
         "and a Rerun app to see why it holds on or drifts.",
-        epilog="Run 'covviz COMMAND --help' for the options and examples of each command.",
+        epilog="""\
+examples:
+  covviz track                                  # the synthetic default: metrics, runs/, recordings/
+  covviz track ../shared/sequences/Car4 --trackers manifold,ipca --seed 1
+  rerun recordings/Car4-manifold-ipca-s1.rrd    # scrub it frame by frame in the viewer
+  covviz snapshot recordings/synthetic-manifold-s0.rrd --frame 120 --out shot.png
+  covviz mds ../shared/sequences/Car4           # the paper's manifold MDS figures
+  covviz bench ../shared/sequences --trackers manifold,ipca,csrt --seeds 3 --jobs 2
+  covviz report runs/bench --out docs/results.md
+
+Run 'covviz COMMAND --help' for the options and examples of each command.""",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     add_track_parser(sub)
+    add_bench_parser(sub)
+    add_report_parser(sub)
+    add_mds_parser(sub)
+    add_snapshot_parser(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # written into recordings
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s: %(message)s"
     )

@@ -1,0 +1,606 @@
+"""``covviz report``: the markdown report and figures of a bench, from its result files only.
+
+Reads ``DIR/bench_manifest.json`` (if present) and every ``DIR/<sequence>/*.json``
+written by :func:`covviz.results.save_result`; never runs a tracker. Writes
+
+* ``report.md``: an overall table and one table per sequence (success AUC,
+  P@20, r_on_track, rms_on_track, fps, failed frames; mean ± std over seeds),
+  a success-AUC matrix, and the thresholds used;
+* ``img/bench_success.png``, ``img/bench_precision.png``: the OTB success and
+  precision plots (curves averaged over sequences);
+* ``img/bench_on_track.png``: the paper's figure, bar charts of the track
+  duration rate (``r_on_track``) and the track accuracy (``rms_on_track``) per
+  sequence, ours (:data:`OURS`) against IPCA (:data:`BASELINE`).
+
+Figures go to ``img/`` next to the markdown file and are linked relatively, so
+``covviz report runs/bench --out docs/results.md`` writes ``docs/img/…``.
+
+Aggregation
+    Per sequence: mean ± sample std (``ddof = STD_DDOF``) of each metric over
+    the seeds. Overall: for each seed, the mean of the metric over sequences
+    (fps: the median over sequences), then mean ± std of those over seeds.
+    Deterministic trackers have one run: no ± part.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from covviz.bench import BenchError, _read_manifest
+from covviz.metrics import IOU_THRESHOLDS, ON_TRACK_GAMMA, PRECISION_AT, PRECISION_THRESHOLDS
+from covviz.results import load_result
+
+__all__ = ["BASELINE", "OURS", "REPORT_NAME", "Run", "load_runs", "write_report"]
+
+log = logging.getLogger("covviz.report")
+
+#: Default name of the report inside a results folder.
+REPORT_NAME = "report.md"
+#: Folder of the figures, next to the markdown file.
+IMG_DIR = "img"
+#: Prefix of the figure files (docs/img/ may hold other pictures).
+FIGURE_PREFIX = "bench_"
+#: The paper's tracker and the baseline of its figure.
+OURS = "manifold"
+BASELINE = "ipca"
+#: Degrees of freedom of the standard deviation over seeds (1: sample std).
+STD_DDOF = 1
+#: Resolution of the PNG figures.
+DPI = 110
+
+#: (metric key in the result JSON, column title, higher is better)
+COLUMNS = (
+    ("success_auc", "success AUC ↑", True),
+    ("precision_20", "P@20 ↑", True),
+    ("r_on_track", "r_on_track ↑", True),
+    ("rms_on_track", "rms_on_track ↓", False),
+)
+
+
+@dataclass(frozen=True)
+class Run:
+    """One result file, as the report needs it."""
+
+    sequence: str
+    tracker: str
+    seed: int | None
+    n_frames: int
+    metrics: dict
+    fps: float
+    n_failed: int
+    jobs: int | None  # worker processes of the bench that made it, and threads per worker
+    threads: int | None
+    success: np.ndarray | None  # OTB success curve over the IoU thresholds
+    precision: np.ndarray | None  # OTB precision curve over the pixel thresholds
+
+
+def _f(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
+    """Read the manifest and every result of a bench folder.
+
+    Returns
+    -------
+    manifest : dict or None
+    runs : list of Run
+    thresholds : dict
+        ``iou``, ``precision`` (arrays), ``precision_at``, ``on_track_gamma``,
+        as stored in the results (the metric module's constants for results
+        written without them).
+
+    Raises
+    ------
+    BenchError
+        If the folder does not exist or holds no result.
+    covviz.results.ResultError
+        If a result file is corrupt (the message names it).
+    """
+    d = Path(results_dir)
+    if not d.is_dir():
+        raise BenchError(f"{d}: no such results folder")
+    manifest = _read_manifest(d)
+    if manifest is not None:
+        seq_names = list(manifest.get("sequences", {}))
+        trackers = set(manifest.get("trackers", []))
+        files = [js for s in seq_names for js in sorted((d / s).glob("*.json"))]
+    else:
+        trackers = None
+        files = sorted(d.glob("*/*.json"))
+    thr = {
+        "iou": np.asarray(IOU_THRESHOLDS, dtype=float),
+        "precision": np.asarray(PRECISION_THRESHOLDS, dtype=float),
+        "precision_at": float(PRECISION_AT),
+        "on_track_gamma": float(ON_TRACK_GAMMA),
+    }
+    seen_thr = False
+    runs: list[Run] = []
+    for js in files:
+        doc, _boxes = load_result(js)
+        if trackers is not None and doc.get("tracker") not in trackers:
+            continue
+        if doc.get("interrupted"):
+            log.warning("%s: an interrupted run; left out of the report", js)
+            continue
+        curves = doc.get("curves") or {}
+        succ = np.asarray(curves["success"], dtype=float) if "success" in curves else None
+        prec = np.asarray(curves["precision"], dtype=float) if "precision" in curves else None
+        if curves.get("iou_thresholds") is not None:
+            t_iou = np.asarray(curves["iou_thresholds"], dtype=float)
+            t_prec = np.asarray(curves["precision_thresholds"], dtype=float)
+            if not seen_thr:
+                thr["iou"], thr["precision"], seen_thr = t_iou, t_prec, True
+            elif (
+                t_iou.shape != thr["iou"].shape
+                or t_prec.shape != thr["precision"].shape
+                or not (np.allclose(t_iou, thr["iou"]) and np.allclose(t_prec, thr["precision"]))
+            ):
+                raise BenchError(f"{js}: computed with other thresholds than the other results; re-run it")
+        t = doc.get("thresholds") or {}
+        thr["precision_at"] = float(t.get("precision_at", thr["precision_at"]))
+        thr["on_track_gamma"] = float(t.get("on_track_gamma", thr["on_track_gamma"]))
+        runs.append(
+            Run(
+                sequence=str(doc.get("sequence", js.parent.name)),
+                tracker=str(doc.get("tracker")),
+                seed=doc.get("seed"),
+                n_frames=int(doc.get("n_frames", 0)),
+                metrics=doc.get("metrics") or {},
+                fps=_f(doc.get("fps")),
+                n_failed=len(doc.get("failed_frames") or []),
+                jobs=(doc.get("bench") or {}).get("jobs"),
+                threads=(doc.get("bench") or {}).get("threads"),
+                success=succ,
+                precision=prec,
+            )
+        )
+    if not runs:
+        raise BenchError(
+            f"{d}: no results to report (expected <sequence>/<tracker>.json files from covviz bench)"
+        )
+    return manifest, runs, thr
+
+
+# --------------------------------------------------------------------------- #
+# statistics and formatting
+# --------------------------------------------------------------------------- #
+@dataclass(frozen=True)
+class Stat:
+    """Mean and std over runs of one number; ``partial`` if some runs had no value."""
+
+    mean: float
+    std: float
+    n: int
+    partial: bool
+
+    @classmethod
+    def of(cls, values) -> Stat:
+        v = np.asarray([_f(x) for x in values], dtype=float)
+        ok = v[np.isfinite(v)]
+        if not len(ok):
+            return cls(float("nan"), float("nan"), 0, len(v) > 0)
+        std = float(np.std(ok, ddof=STD_DDOF)) if len(ok) > STD_DDOF else float("nan")
+        return cls(float(ok.mean()), std, len(ok), len(ok) < len(v))
+
+    def fmt(self, digits: int = 3) -> str:
+        if not np.isfinite(self.mean):
+            return "—"
+        s = f"{self.mean:.{digits}f}"
+        if self.n > 1 and np.isfinite(self.std):
+            s += f" ± {self.std:.{digits}f}"
+        return s + ("†" if self.partial else "")
+
+
+def _jobs_note(runs: list[Run]) -> str:
+    """How the runs shared the machine (fps depend on it)."""
+    settings = sorted({(r.jobs, r.threads) for r in runs if r.jobs is not None}, key=str)
+    if not settings:
+        return "settings unknown"
+    if len(settings) > 1:
+        return "with different --jobs settings (compare fps with care)"
+    jobs, threads = settings[0]
+    return f"{jobs} at a time" + (
+        f" with {threads} OpenCV/BLAS thread{'s' * (threads != 1)} each" if threads else ""
+    )
+
+
+def _fps_digits(v: float) -> int:
+    return 0 if (np.isfinite(v) and v >= 100) else 1
+
+
+def _order(names, preferred) -> list[str]:
+    names = set(names)
+    return [t for t in preferred if t in names] + sorted(names - set(preferred))
+
+
+def _table(rows: list[tuple[str, str, dict[str, Stat], Stat, Stat]]) -> list[str]:
+    """Markdown table; the best mean of each metric column is bold."""
+    head = ["tracker", "runs"] + [title for _, title, _ in COLUMNS] + ["fps", "failed frames"]
+    best = {}
+    for key, _, higher in COLUMNS:
+        means = [r[2][key].mean for r in rows if np.isfinite(r[2][key].mean)]
+        if len(rows) > 1 and means:
+            best[key] = max(means) if higher else min(means)
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] * 2 + ["---:"] * (len(head) - 2)) + "|"]
+    for name, runs, stats, fps, failed in rows:
+        cells = [f"`{name}`", runs]
+        for key, _, _ in COLUMNS:
+            c = stats[key].fmt()
+            if (
+                key in best
+                and np.isfinite(stats[key].mean)
+                and round(stats[key].mean, 3) == round(best[key], 3)
+            ):
+                c = f"**{c}**"
+            cells.append(c)
+        cells.append(fps.fmt(_fps_digits(fps.mean)))
+        cells.append(failed.fmt(0) if np.isfinite(failed.mean) else "—")
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+# --------------------------------------------------------------------------- #
+# the report
+# --------------------------------------------------------------------------- #
+def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path:
+    """Write the report of the bench in ``results_dir``; return the markdown path.
+
+    Parameters
+    ----------
+    results_dir : path
+        A folder written by ``covviz bench``.
+    out : path, optional
+        The markdown file (default ``results_dir/report.md``); figures go to
+        ``img/`` beside it.
+    """
+    d = Path(results_dir)
+    manifest, runs, thr = load_runs(d)
+    md_path = Path(out) if out is not None else d / REPORT_NAME
+    if md_path.suffix.lower() != ".md":
+        raise BenchError(f"--out must be a markdown file (.md), got {md_path}")
+    img_dir = md_path.parent / IMG_DIR
+    try:
+        img_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BenchError(f"cannot write to {img_dir}: {exc.strerror or exc}") from None
+
+    preferred = list((manifest or {}).get("trackers", []))
+    trackers = _order({r.tracker for r in runs}, preferred)
+    if manifest is not None:
+        seq_frames = {k: int(v) for k, v in manifest.get("sequences", {}).items()}
+    else:
+        seq_frames = {}
+        for r in runs:
+            seq_frames.setdefault(r.sequence, r.n_frames)
+    sequences = sorted({r.sequence for r in runs} | set(seq_frames), key=str.lower)
+    by = {}
+    for r in runs:
+        by.setdefault((r.sequence, r.tracker), []).append(r)
+    for v in by.values():
+        v.sort(key=lambda r: -1 if r.seed is None else r.seed)
+    stochastic = {t for t in trackers if any(r.seed is not None for r in runs if r.tracker == t)}
+    n_seeds_manifest = int((manifest or {}).get("seeds", 0))
+
+    def expected(t: str) -> int:
+        if t not in stochastic:
+            return 1
+        seeds = {r.seed for r in runs if r.tracker == t}
+        return max(n_seeds_manifest, len(seeds))
+
+    # ---- per sequence ------------------------------------------------------
+    per_seq: dict[str, list] = {}
+    for s in sequences:
+        rows = []
+        for t in trackers:
+            rs = by.get((s, t), [])
+            if not rs:
+                continue
+            stats = {k: Stat.of(r.metrics.get(k) for r in rs) for k, _, _ in COLUMNS}
+            rows.append(
+                (
+                    t,
+                    f"{len(rs)}/{expected(t)}",
+                    stats,
+                    Stat.of(r.fps for r in rs),
+                    Stat.of(r.n_failed for r in rs),
+                )
+            )
+        per_seq[s] = rows
+
+    # ---- overall: per seed, mean over sequences; then over seeds -----------
+    overall_rows, incomplete = [], []
+    for t in trackers:
+        rs = [r for r in runs if r.tracker == t]
+        seeds = sorted({r.seed for r in rs}, key=lambda x: -1 if x is None else x)
+        per_seed = {k: [] for k, _, _ in COLUMNS}
+        partial = set()  # metrics undefined on some sequence: the mean is over the others
+        fps, failed = [], []
+        for sd in seeds:
+            rr = [r for r in rs if r.seed == sd]
+            for k, _, _ in COLUMNS:
+                vals = np.array([_f(r.metrics.get(k)) for r in rr])
+                if not np.isfinite(vals).all():
+                    partial.add(k)
+                per_seed[k].append(float(np.nanmean(vals)) if np.isfinite(vals).any() else float("nan"))
+            f = np.array([r.fps for r in rr])
+            fps.append(float(np.nanmedian(f)) if np.isfinite(f).any() else float("nan"))
+            failed.append(sum(r.n_failed for r in rr))
+        n_exp = len(sequences) * expected(t)
+        if len(rs) < n_exp:
+            incomplete.append(t)
+        overall_rows.append(
+            (
+                t,
+                f"{len(rs)}/{n_exp}",
+                {
+                    k: replace(Stat.of(v), partial=True) if k in partial else Stat.of(v)
+                    for k, v in per_seed.items()
+                },
+                Stat.of(fps),
+                Stat.of(failed),
+            )
+        )
+
+    # ---- figures -------------------------------------------------------------
+    figs = _figures(img_dir, sequences, trackers, by, thr)
+
+    # ---- markdown ------------------------------------------------------------
+    rel = lambda p: Path(os.path.relpath(p, md_path.parent)).as_posix()
+    L: list[str] = ["# covviz benchmark", ""]
+    n_files = len(runs)
+    # Where the results are, relative to the markdown (the report may move with its folder).
+    where = rel(d)
+    where = "this folder" if where == "." else f"`{where}` (relative to this file)"
+    if manifest is not None:
+        L += [
+            f"Results in {where}: {n_files} runs of {len(trackers)} trackers "
+            f"on {len(sequences)} sequences from "
+            f"`{manifest.get('root')}`"
+            + (f", first {manifest['max_frames']} frames of each" if manifest.get("max_frames") else "")
+            + ".",
+            (
+                f"Stochastic trackers ({', '.join(f'`{t}`' for t in sorted(stochastic))}) ran with "
+                f"{n_seeds_manifest} seeds (seed *s* replays with "
+                "`covviz track SEQ --tracker NAME --seed s`); "
+                "the others once"
+                if stochastic
+                else "All trackers are deterministic and ran once"
+            )
+            + (f"; {manifest['particles']} particles" if manifest.get("particles") else "")
+            + f". Each run in a fresh process, {_jobs_note(runs)}. covviz {manifest.get('covviz')}.",
+        ]
+    else:
+        L += [
+            (
+                f"Results in {where}: {n_files} runs of {len(trackers)} trackers "
+                f"on {len(sequences)} sequences "
+                "(no bench manifest)."
+            )
+        ]
+    L += [
+        "",
+        (
+            "Rebuilt from the result files by `covviz report`; nothing is re-run. ± is the standard "
+            f"deviation over seeds (ddof={STD_DDOF}); † marks a mean over the runs (overall: the sequences) "
+            "where the metric is defined (rms_on_track is undefined when no frame is on track). "
+            "**Bold**: best of the table. *runs*: results found / expected. *failed frames*: frames on which "
+            "an OpenCV tracker reported a failure (it then keeps its last box); overall, their total."
+        ),
+        "",
+        "## Overall",
+        "",
+        (
+            f"Each metric is averaged over the {len(sequences)} sequences "
+            "(each sequence weighs the same), per seed; "
+            "fps is the median over sequences of `update` calls per second (frame reading excluded)."
+        ),
+        "",
+        *_table(overall_rows),
+        "",
+    ]
+    if incomplete:
+        L += [
+            (
+                f"Incomplete: {', '.join(f'`{t}`' for t in incomplete)} miss some runs; "
+                "their overall row averages "
+                "over the sequences they have. Run the bench again to complete them."
+            ),
+            "",
+        ]
+    if figs.get("success"):
+        L += [
+            f"![OTB success plot]({rel(figs['success'])}) ![OTB precision plot]({rel(figs['precision'])})",
+            "",
+        ]
+    L += ["## The paper's figure: track duration rate and accuracy, ours against IPCA", ""]
+    if figs.get("on_track"):
+        missing = [t for t in (OURS, BASELINE) if t not in trackers]
+        L += [
+            f"`{OURS}` (ours) against `{BASELINE}` (IVT) per sequence: the track duration rate "
+            "r_on_track (higher is better) and the track accuracy rms_on_track (lower is better), "
+            "mean over seeds with ±1 std bars."
+            + (f" No `{'`, `'.join(missing)}` results yet." if missing else ""),
+            "",
+            f"![track duration rate and accuracy]({rel(figs['on_track'])})",
+            "",
+        ]
+    else:
+        L += [f"Needs `{OURS}` or `{BASELINE}` results; this bench has neither.", ""]
+
+    L += ["## Success AUC per sequence", ""]
+    L += [
+        "| sequence | frames | " + " | ".join(f"`{t}`" for t in trackers) + " |",
+        "|---|---:|" + "---:|" * len(trackers),
+    ]
+    for s in sequences:
+        cells = []
+        for t in trackers:
+            rs = by.get((s, t), [])
+            cells.append(Stat.of(r.metrics.get("success_auc") for r in rs).fmt() if rs else "—")
+        L.append(f"| {s} | {seq_frames.get(s, '?')} | " + " | ".join(cells) + " |")
+    L += ["", "## Per sequence", ""]
+    for s in sequences:
+        L += [f"### {s} ({seq_frames.get(s, '?')} frames)", ""]
+        L += _table(per_seq[s]) if per_seq[s] else ["No results yet."]
+        L.append("")
+
+    iou_t, prec_t = thr["iou"], thr["precision"]
+    L += [
+        "## Definitions and thresholds",
+        "",
+        "Named constants (of `covviz.metrics` and `covviz.report`), as used for these results:",
+        "",
+        (
+            f"- `IOU_THRESHOLDS` = {len(iou_t)} values {iou_t[0]:g}, {iou_t[1]:g}, …, {iou_t[-1]:g}. "
+            "**Success AUC**: the mean over these thresholds of the fraction of frames with IoU > threshold "
+            "(OTB's success plot, Wu et al. 2013)."
+        ),
+        (
+            f"- `PRECISION_THRESHOLDS` = {prec_t[0]:g} … {prec_t[-1]:g} px; "
+            f"`PRECISION_AT` = {thr['precision_at']:g} px. **P@{thr['precision_at']:g}**: the fraction of "
+            f"frames whose centre error is ≤ {thr['precision_at']:g} px."
+        ),
+        (
+            f"- `ON_TRACK_GAMMA` = {thr['on_track_gamma']:g}. A frame is on track when "
+            "γ = ½(|e_x|/W_gt + |e_y|/H_gt) ≤ `ON_TRACK_GAMMA`. **r_on_track**: on-track frames / "
+            "frames with ground truth (the track duration rate); **rms_on_track**: √(mean over on-track "
+            "frames of "
+            "½((e_x/W_gt)² + (e_y/H_gt)²)) (the track accuracy)."
+        ),
+        (
+            f"- `OURS` = `{OURS}`, `BASELINE` = `{BASELINE}` (the bars of the paper's figure); "
+            f"`STD_DDOF` = {STD_DDOF}."
+        ),
+        (
+            "- Frames without ground truth are skipped; frame 0 (the given box) counts, as in OTB's "
+            "one-pass evaluation."
+        ),
+        "",
+    ]
+    tmp = md_path.with_name(md_path.name + ".part")
+    tmp.write_text("\n".join(L).rstrip("\n") + "\n")
+    os.replace(tmp, md_path)
+    return md_path
+
+
+# --------------------------------------------------------------------------- #
+# figures (matplotlib, Agg, imported here only)
+# --------------------------------------------------------------------------- #
+def _mean_curve(by, sequences, t, attr) -> np.ndarray | None:
+    """Mean over sequences of (mean over seeds of) a run curve; None without curves."""
+    per_seq = []
+    for s in sequences:
+        cs = [getattr(r, attr) for r in by.get((s, t), []) if getattr(r, attr) is not None]
+        if cs:
+            per_seq.append(np.nanmean(np.stack(cs), axis=0))
+    if not per_seq:
+        return None
+    with np.errstate(all="ignore"):
+        return np.nanmean(np.stack(per_seq), axis=0)
+
+
+def _figures(img_dir: Path, sequences, trackers, by, thr) -> dict[str, Path]:
+    # The object API with the Agg canvas: no pyplot, no global backend switch, no display.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    def new_figure(**kw) -> Figure:
+        fig = Figure(layout="constrained", **kw)
+        FigureCanvasAgg(fig)
+        return fig
+
+    out: dict[str, Path] = {}
+    from covviz.trackers import TRACKERS
+
+    # Colours follow the registry order, so a tracker has the same colour in every report.
+    known = list(TRACKERS)
+    colours = {
+        t: f"C{(known.index(t) if t in known else len(known) + i) % 10}" for i, t in enumerate(trackers)
+    }
+
+    # OTB success and precision plots
+    curves = {
+        t: (_mean_curve(by, sequences, t, "success"), _mean_curve(by, sequences, t, "precision"))
+        for t in trackers
+    }
+    curves = {t: c for t, c in curves.items() if c[0] is not None and c[1] is not None}
+    if curves:
+        k_at = int(np.argmin(np.abs(thr["precision"] - thr["precision_at"])))
+        for kind in ("success", "precision"):
+            fig = new_figure(figsize=(5.6, 4.2))
+            ax = fig.add_subplot()
+            if kind == "success":
+                score = {t: float(np.nanmean(c[0])) for t, c in curves.items()}
+                x, idx, xlabel = thr["iou"], 0, "overlap threshold (IoU)"
+                title, label = "Success plots of OPE", "AUC"
+            else:
+                score = {t: float(c[1][k_at]) for t, c in curves.items()}
+                x, idx, xlabel = thr["precision"], 1, "location error threshold (px)"
+                title, label = "Precision plots of OPE", f"P@{thr['precision_at']:g}"
+            for t in sorted(curves, key=lambda t: -np.nan_to_num(score[t], nan=-1)):
+                ax.plot(x, curves[t][idx], color=colours[t], lw=2, label=f"{t} [{score[t]:.3f}]")
+            if kind == "precision":
+                ax.axvline(thr["precision_at"], color="0.6", lw=0.8, ls="--")
+            ax.set(
+                xlabel=xlabel,
+                ylabel="success rate" if kind == "success" else "precision",
+                title=f"{title} ({len(sequences)} sequences)",
+                ylim=(0, 1.0),
+                xlim=(x[0], x[-1]),
+            )
+            ax.grid(alpha=0.3)
+            ax.legend(loc="lower left" if kind == "success" else "lower right", fontsize=8, title=label)
+            p = img_dir / f"{FIGURE_PREFIX}{kind}.png"
+            fig.savefig(p, dpi=DPI)
+            out[kind] = p
+
+    # The paper's figure: r_on_track and rms_on_track per sequence, ours against the baseline
+    pair = [t for t in (OURS, BASELINE) if t in trackers]
+    if pair:
+        fig = new_figure(figsize=(max(6.0, 0.55 * len(sequences) * len(pair) + 2), 6.4))
+        axes = fig.subplots(2, 1, sharex=True)
+        x = np.arange(len(sequences))
+        width = 0.8 / len(pair)
+        for ax, (key, title) in zip(
+            axes,
+            (
+                ("r_on_track", "track duration rate r_on_track (higher is better)"),
+                ("rms_on_track", "track accuracy rms_on_track (lower is better)"),
+            ),
+        ):
+            for i, t in enumerate(pair):
+                st = [Stat.of(r.metrics.get(key) for r in by.get((s, t), [])) for s in sequences]
+                m = np.array([s_.mean for s_ in st])
+                e = np.array([s_.std if np.isfinite(s_.std) else 0.0 for s_ in st])
+                xs = x + (i - (len(pair) - 1) / 2) * width
+                ok = np.isfinite(m)
+                ax.bar(
+                    xs[ok],
+                    m[ok],
+                    width,
+                    yerr=e[ok],
+                    capsize=2,
+                    color=colours[t],
+                    label=f"{t}" + (" (ours)" if t == OURS else ""),
+                )
+                # No bar is not a zero: say why (no result, or no frame on track for rms).
+                for xi in xs[~ok]:
+                    ax.text(xi, 0, "n/a", ha="center", va="bottom", fontsize=6, rotation=90, color=colours[t])
+            ax.set_title(title, fontsize=10)
+            ax.grid(axis="y", alpha=0.3)
+            ax.legend(fontsize=8)
+        axes[0].set_ylim(0, 1.05)
+        axes[1].set_xticks(x, sequences, rotation=45, ha="right", fontsize=8)
+        p = img_dir / f"{FIGURE_PREFIX}on_track.png"
+        fig.savefig(p, dpi=DPI)
+        out["on_track"] = p
+    return out

@@ -1,0 +1,193 @@
+"""Every entity path of a covviz recording, in one place.
+
+The entity tree::
+
+    description                      TextDocument (markdown): what each view shows, how to read drift
+    config                           TextDocument: run, trackers, logger settings, thresholds
+    summary                          TextDocument: metrics and events at the end of the run
+    video/image                      EncodedImage (JPEG): the frame
+    video/ground_truth               Boxes2D: the ground-truth box
+    trackers/<name>/video/box        Boxes2D: the estimate as scored (axis-aligned)
+    trackers/<name>/video/region     LineStrips2D: the estimated (rotated) region
+    trackers/<name>/video/particles  LineStrips2D: every particle's region, coloured by weight
+    trackers/<name>/video/top        LineStrips2D: the top-k particles, bold
+    trackers/<name>/video/centres    Points2D: particle centres, sized by weight
+    trackers/<name>/video/likelihood Image: the likelihood map around the estimate (placed by a Transform3D)
+    trackers/<name>/video/likelihood_peak  Points2D: the best position of that map
+    trackers/<name>/video/background LineStrips2D: regions sampled as background for the MDS picture
+    trackers/<name>/weights/...      Scalars: ess (ESS/N), max, survivors; SeriesPoints: resampled
+    trackers/<name>/distance/...     Scalars: min, mean (weighted), spread (template cloud)
+    trackers/<name>/metrics/...      Scalars: iou, center_error; SeriesPoints: drift, lost, recovered
+    trackers/<name>/timings/<stage>  Scalars: milliseconds per stage of the update
+    trackers/<name>/tensors          Tensor (3, 9, 9): template, observed, difference, log space
+    trackers/<name>/cloud/<kind>     Points2D: MDS of the template cloud (template, top, estimate, initial,
+                                     background, target)
+    trackers/<name>/cloud_zoom/<kind> Points2D: the same without the background (the cloud's structure)
+    trackers/<name>/events           TextLog: storms, loss, drift onset, recovery
+    logger/time                      Scalars: milliseconds the logger spent on the frame
+
+Timelines: ``frame`` (0-based frame index) and, when the sequence has a frame
+rate, ``time`` (seconds since the first frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = [
+    "CONFIG",
+    "DESCRIPTION",
+    "FRAME_TIMELINE",
+    "GROUND_TRUTH",
+    "IMAGE",
+    "LOGGER_TIME",
+    "SUMMARY",
+    "TIME_TIMELINE",
+    "TRACKERS",
+    "VIDEO",
+    "TrackerPaths",
+]
+
+FRAME_TIMELINE = "frame"
+TIME_TIMELINE = "time"
+
+DESCRIPTION = "description"
+CONFIG = "config"
+SUMMARY = "summary"
+VIDEO = "video"
+IMAGE = "video/image"
+GROUND_TRUTH = "video/ground_truth"
+TRACKERS = "trackers"
+LOGGER_TIME = "logger/time"
+
+#: Entities of the MDS figures of ``covviz mds`` (see :mod:`covviz.viz.mds_figures`).
+FIGURE_SEPARATION = "figures/separation"
+FIGURE_RANDOM_WALK = "figures/random_walk"
+
+
+@dataclass(frozen=True)
+class TrackerPaths:
+    """The entity paths of one tracker, under ``trackers/<name>``."""
+
+    name: str
+
+    @property
+    def root(self) -> str:
+        return f"{TRACKERS}/{self.name}"
+
+    # drawn on the frame
+    @property
+    def video(self) -> str:
+        return f"{self.root}/video"
+
+    @property
+    def box(self) -> str:
+        return f"{self.video}/box"
+
+    @property
+    def region(self) -> str:
+        return f"{self.video}/region"
+
+    @property
+    def particles(self) -> str:
+        return f"{self.video}/particles"
+
+    @property
+    def top(self) -> str:
+        return f"{self.video}/top"
+
+    @property
+    def centres(self) -> str:
+        return f"{self.video}/centres"
+
+    @property
+    def likelihood(self) -> str:
+        return f"{self.video}/likelihood"
+
+    @property
+    def likelihood_peak(self) -> str:
+        return f"{self.video}/likelihood_peak"
+
+    @property
+    def background(self) -> str:
+        return f"{self.video}/background"
+
+    # time series
+    @property
+    def weights(self) -> str:
+        return f"{self.root}/weights"
+
+    @property
+    def ess(self) -> str:
+        return f"{self.weights}/ess"
+
+    @property
+    def max_weight(self) -> str:
+        return f"{self.weights}/max"
+
+    @property
+    def survivors(self) -> str:
+        return f"{self.weights}/survivors"
+
+    @property
+    def resampled(self) -> str:
+        return f"{self.weights}/resampled"
+
+    @property
+    def distance(self) -> str:
+        return f"{self.root}/distance"
+
+    @property
+    def distance_min(self) -> str:
+        return f"{self.distance}/min"
+
+    @property
+    def distance_mean(self) -> str:
+        return f"{self.distance}/mean"
+
+    @property
+    def spread(self) -> str:
+        return f"{self.distance}/spread"
+
+    @property
+    def metrics(self) -> str:
+        return f"{self.root}/metrics"
+
+    @property
+    def iou(self) -> str:
+        return f"{self.metrics}/iou"
+
+    @property
+    def center_error(self) -> str:
+        return f"{self.metrics}/center_error"
+
+    def marker(self, kind: str) -> str:
+        """Event markers on the IoU plot: ``drift``, ``lost``, ``recovered``."""
+        return f"{self.metrics}/{kind}"
+
+    @property
+    def timings(self) -> str:
+        return f"{self.root}/timings"
+
+    def timing(self, stage: str) -> str:
+        return f"{self.timings}/{stage}"
+
+    # tensors, cloud, events
+    @property
+    def tensors(self) -> str:
+        return f"{self.root}/tensors"
+
+    @property
+    def cloud(self) -> str:
+        return f"{self.root}/cloud"
+
+    def cloud_kind(self, kind: str) -> str:
+        return f"{self.cloud}/{kind}"
+
+    @property
+    def cloud_zoom(self) -> str:
+        return f"{self.root}/cloud_zoom"
+
+    @property
+    def events(self) -> str:
+        return f"{self.root}/events"

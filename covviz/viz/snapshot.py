@@ -1,0 +1,204 @@
+"""``covviz snapshot RECORDING --frame N --out shot.png``: a PNG of the real viewer, without a display.
+
+Starts the Rerun viewer headless (``rerun --headless --window-size WxH``, which
+renders in software through Vulkan: ``apt-get install mesa-vulkan-drivers
+libvulkan1``), drives it with :class:`rerun.experimental.ViewerClient` — open
+the recording, go to the frame, pause, save a screenshot — and stops it. The
+recording's own blueprint decides the layout.
+
+What works here (rerun 0.41, checked): ``ViewerClient.spawn`` has no window
+size, so the viewer is started as a subprocess of ours on a free port and the
+client connects to it; ``rerun --headless --screenshot-to`` alone cannot
+choose a frame (it shows the last one) and shows the start-up notifications.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+__all__ = ["SnapshotError", "find_viewer", "parse_size", "snapshot", "vulkan_available"]
+
+#: Where Vulkan loaders look for installable client drivers (ICDs).
+VULKAN_ICD_DIRS = ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d", "/usr/local/share/vulkan/icd.d")
+
+
+class SnapshotError(RuntimeError):
+    """The headless viewer could not produce the screenshot; the message says what to fix."""
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"1600x900"`` -> ``(1600, 900)``."""
+    try:
+        w, h = (int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size must look like 1600x900, got {text!r}") from None
+    if not (200 <= w <= 8000 and 200 <= h <= 8000):
+        raise ValueError(f"--size must be between 200x200 and 8000x8000, got {text!r}")
+    return w, h
+
+
+def vulkan_available() -> bool:
+    """Whether a Vulkan driver is installed (the headless viewer needs one, e.g. Mesa's lavapipe)."""
+    if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):
+        return True
+    return any(glob.glob(os.path.join(d, "*.json")) for d in VULKAN_ICD_DIRS)
+
+
+def find_viewer() -> str | None:
+    """Path of the native ``rerun`` viewer binary (not the Python wrapper script), or None."""
+    env = os.environ.get("RERUN_CLI_PATH")
+    if env and Path(env).is_file():
+        return env
+    try:
+        import rerun_cli
+
+        exe = Path(rerun_cli.__file__).with_name("rerun")
+        if exe.is_file():
+            return str(exe)
+    except ImportError:
+        pass
+    return shutil.which("rerun")
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is not None:
+        return
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)  # the group we created for this viewer only
+    except (ProcessLookupError, PermissionError):
+        proc.terminate()
+    try:
+        proc.wait(timeout=5)
+    except subprocess.TimeoutExpired:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait(timeout=5)
+
+
+def snapshot(
+    recording: str | Path,
+    out: str | Path,
+    frame: int | None = None,
+    size: tuple[int, int] = (1600, 900),
+    timeline: str = "frame",
+    timeout: float = 60.0,
+    settle: float = 1.0,
+) -> Path:
+    """Render ``recording`` in the headless Rerun viewer at ``frame`` and save a PNG.
+
+    Parameters
+    ----------
+    recording : path
+        An ``.rrd`` file.
+    out : path
+        The PNG to write (its folder is created).
+    frame : int, optional
+        Position on ``timeline`` (default: the last frame of the recording).
+    size : (int, int)
+        Window size in logical points (the PNG may be larger on HiDPI scaling).
+    timeline : str
+    timeout : float
+        Seconds to wait for the viewer to start and load.
+    settle : float
+        Seconds to let the views settle before the screenshot.
+
+    Raises
+    ------
+    SnapshotError
+        No Vulkan driver or viewer binary, the viewer did not start, or no
+        screenshot was written.
+    """
+    recording = Path(recording).resolve()
+    out = Path(out).resolve()
+    if not recording.is_file():
+        raise SnapshotError(f"{recording}: no such recording")
+    if not vulkan_available():
+        raise SnapshotError(
+            "no Vulkan driver for the headless viewer; install it with "
+            "'apt-get install -y mesa-vulkan-drivers libvulkan1'"
+        )
+    exe = find_viewer()
+    if exe is None:
+        raise SnapshotError("the rerun viewer is not installed (pip install rerun-sdk)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.exists():
+        out.unlink()
+
+    from rerun.experimental import ViewerClient
+
+    port = _free_port()
+    cmd = [
+        exe,
+        "--headless",
+        "--window-size",
+        f"{size[0]}x{size[1]}",
+        "--port",
+        str(port),
+        "--hide-welcome-screen",
+    ]
+    env = dict(os.environ)
+    env.setdefault("XDG_RUNTIME_DIR", "/tmp")
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, start_new_session=True
+    )
+    try:
+        deadline = time.monotonic() + timeout
+        client = None
+        while time.monotonic() < deadline:
+            if proc.poll() is not None:
+                err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+                tail = " ".join(err.strip().splitlines()[-2:])[-300:]
+                raise SnapshotError(
+                    f"the headless viewer exited (code {proc.returncode}): {tail or 'no message'}"
+                )
+            try:
+                client = ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy")
+                client.get_state()
+                break
+            except Exception:  # noqa: BLE001 - not listening yet (the client raises several kinds)
+                client = None
+                time.sleep(0.2)
+        if client is None:
+            raise SnapshotError(f"the headless viewer did not answer within {timeout:.0f} s")
+        client.open(str(recording))
+        state = client.get_state()
+        while state.loading and time.monotonic() < deadline:
+            time.sleep(0.2)
+            state = client.get_state()
+        rec = next((r for r in state.recordings if r.store_id == state.active_recording), None)
+        if rec is None:
+            raise SnapshotError(f"{recording}: the viewer opened no recording from it")
+        tl = next((t for t in rec.timelines if t.name == timeline), None)
+        if tl is None:
+            names = ", ".join(t.name for t in rec.timelines) or "none"
+            raise SnapshotError(f"{recording}: no timeline {timeline!r} (timelines: {names})")
+        target = tl.end if frame is None else int(frame)
+        if not tl.start <= target <= tl.end:
+            raise SnapshotError(f"--frame {target} is outside the recording's frames {tl.start}..{tl.end}")
+        client.set_time(timeline, sequence=target, play_state="paused")
+        time.sleep(settle)
+        client.save_screenshot(str(out))  # warms up the views (images decoded, plots laid out)
+        time.sleep(settle)
+        client.save_screenshot(str(out))
+    finally:
+        _stop(proc)
+        if proc.stderr:
+            proc.stderr.close()
+    if not out.is_file() or out.stat().st_size == 0:
+        raise SnapshotError(f"the viewer wrote no screenshot to {out}")
+    return out

@@ -1,0 +1,155 @@
+"""Tests for :mod:`covviz.embedding`: MDS of distance matrices and Procrustes alignment."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from covviz.embedding import (
+    AlignedMDS,
+    classical_mds,
+    distance_matrix,
+    embed,
+    procrustes_align,
+    smacof_mds,
+    stress,
+)
+from covviz.spd import distance_riemann, expm
+
+
+def _pairwise(X: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(X[:, None] - X[None], axis=-1)
+
+
+def _rotation(a: float) -> np.ndarray:
+    return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+
+
+@pytest.fixture
+def config(rng) -> np.ndarray:
+    """A known 2-D configuration (not degenerate)."""
+    return rng.normal(size=(30, 2)) * np.array([3.0, 1.0])
+
+
+def test_classical_mds_recovers_a_planar_configuration_up_to_rigid_motion(config):
+    X = classical_mds(_pairwise(config))
+    assert X.shape == config.shape
+    # Same distances ...
+    np.testing.assert_allclose(_pairwise(X), _pairwise(config), atol=1e-9)
+    # ... and a rigid motion maps one onto the other exactly.
+    Y, R, _ = procrustes_align(X, config)
+    np.testing.assert_allclose(Y, config, atol=1e-9)
+    np.testing.assert_allclose(R @ R.T, np.eye(2), atol=1e-12)
+
+
+def test_classical_mds_is_centred_and_deterministic(config):
+    D = _pairwise(config)
+    X1, X2 = classical_mds(D), classical_mds(D.copy())
+    np.testing.assert_array_equal(X1, X2)
+    np.testing.assert_allclose(X1.mean(axis=0), 0.0, atol=1e-9)
+
+
+def test_classical_mds_small_inputs():
+    assert classical_mds(np.zeros((1, 1))).shape == (1, 2)
+    X = classical_mds(np.array([[0.0, 2.0], [2.0, 0.0]]))
+    assert np.linalg.norm(X[0] - X[1]) == pytest.approx(2.0)
+
+
+def test_smacof_keeps_a_high_dimensional_cloud_open(rng):
+    """Classical MDS flattens an isotropic 20-D cloud next to a far point; SMACOF fits the distances."""
+    cloud = rng.normal(scale=0.1, size=(40, 20))
+    far = np.zeros((1, 20))
+    far[0, 0] = 3.0
+    P = np.concatenate([cloud, far])
+    D = _pairwise(P)
+    Xc, Xs = classical_mds(D), smacof_mds(D, max_iter=100)
+    assert stress(Xs, D) < 0.5 * stress(Xc, D)
+    inner = _pairwise(Xs[:40]).mean() / D[:40, :40].mean()
+    assert inner > 0.6  # the cloud stays open (classical shrinks it)
+
+
+def test_smacof_matches_euclidean_distances(config):
+    D = _pairwise(config)
+    X = smacof_mds(D)
+    np.testing.assert_allclose(_pairwise(X), D, atol=1e-3)
+    np.testing.assert_array_equal(X, smacof_mds(D))
+    assert embed(D, "smacof").shape == (len(D), 2)
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.ones((3, 2)), "square"),
+        (np.array([[0.0, np.nan], [np.nan, 0.0]]), "NaN"),
+        (np.array([[0.0, -1.0], [-1.0, 0.0]]), "negative"),
+        (np.array([[0.0, 1.0], [2.0, 0.0]]), "symmetric"),
+    ],
+)
+def test_bad_distance_matrices_are_refused(bad, match):
+    with pytest.raises(ValueError, match=match):
+        classical_mds(bad)
+
+
+def test_unknown_method_is_refused():
+    with pytest.raises(ValueError, match="classical"):
+        embed(np.zeros((2, 2)), "tsne")
+    with pytest.raises(ValueError, match="classical"):
+        AlignedMDS("tsne")
+
+
+@pytest.mark.parametrize("flip", [False, True])
+def test_procrustes_removes_a_rotation_a_flip_and_a_translation(config, flip):
+    M = _rotation(1.1)
+    if flip:
+        M = M @ np.diag([1.0, -1.0])
+    moved = config @ M + np.array([5.0, -3.0])
+    back, R, _ = procrustes_align(moved, config)
+    np.testing.assert_allclose(back, config, atol=1e-9)
+    assert abs(abs(np.linalg.det(R)) - 1.0) < 1e-12
+
+
+def test_procrustes_fits_on_matched_points_and_moves_all(config):
+    moved = config @ _rotation(-0.7) + 2.0
+    idx = np.array([0, 3, 5, 8])
+    back, _, _ = procrustes_align(moved, config[idx], mask=idx)
+    np.testing.assert_allclose(back, config, atol=1e-9)  # the unmatched points follow
+
+
+def test_procrustes_does_not_scale(config):
+    back, _, _ = procrustes_align(config * 2.0, config)
+    # Distances keep their meaning: the picture is not shrunk onto the reference.
+    np.testing.assert_allclose(_pairwise(back), 2.0 * _pairwise(config), atol=1e-9)
+
+
+def test_procrustes_checks_shapes(config):
+    with pytest.raises(ValueError, match="shape"):
+        procrustes_align(config, config[:5])
+
+
+def test_aligned_mds_keeps_anchors_in_place(config, rng):
+    """A second, slightly perturbed configuration lands where the first was (no flip, no spin)."""
+    keys = [f"a{i}" for i in range(len(config))]
+    emb = AlignedMDS()
+    X1 = emb.fit(_pairwise(config), keys)
+    perturbed = config + rng.normal(scale=0.01, size=config.shape)
+    # Reorder and add two new, unkeyed points: alignment goes by key, not by position.
+    order = rng.permutation(len(config))
+    extra = rng.normal(size=(2, 2))
+    pts = np.concatenate([perturbed[order], extra])
+    X2 = emb.fit(_pairwise(pts), [keys[i] for i in order] + [None, None])
+    np.testing.assert_allclose(X2[: len(config)], X1[order], atol=0.05)
+
+
+def test_aligned_mds_checks_keys(config):
+    with pytest.raises(ValueError, match="keys"):
+        AlignedMDS().fit(_pairwise(config), ["a"])
+
+
+def test_distance_matrix_of_spd_matrices(rng):
+    A = rng.normal(size=(6, 4, 4))
+    C = expm(0.3 * (A + A.transpose(0, 2, 1)))
+    D = distance_matrix(C)
+    assert D.shape == (6, 6)
+    np.testing.assert_allclose(D, D.T)
+    np.testing.assert_allclose(np.diag(D), 0.0)
+    assert D[1, 4] == pytest.approx(float(distance_riemann(C[1], C[4])), rel=1e-9)

@@ -1,0 +1,316 @@
+"""Tests for :mod:`covviz.viz.logger`: a saved recording read back equals the FrameRecords it came from."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from viz_helpers import boxes, last, read_recording, rrd_verify, scalar_series, static_text, texts
+
+from covviz.metrics import center_error, iou
+from covviz.records import FrameRecord
+from covviz.runner import run_many
+from covviz.sequences import SyntheticConfig, SyntheticSequence
+from covviz.trackers.base import IdentityTracker
+from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
+from covviz.viz import paths as P
+from covviz.viz.logger import (
+    _LUT,
+    LoggerConfig,
+    RerunLogger,
+    attach_sinks,
+    new_recording,
+    weight_levels,
+)
+
+N_FRAMES = 12
+N_PARTICLES = 50
+MDS_EVERY = 4
+
+
+class Collector:
+    """Keeps every FrameRecord handed to observers."""
+
+    def __init__(self):
+        self.records: list[list[FrameRecord]] = []
+        self.frames = []
+
+    def on_frame(self, frame, records):
+        self.records.append(list(records))
+        self.frames.append(frame)
+
+
+def record_run(path, trackers, n_frames=N_FRAMES, config=None, fail_at=None):
+    seq = SyntheticSequence(SyntheticConfig(n_frames=n_frames))
+    stream = new_recording()
+    attach_sinks(stream, save=path)
+    logger = RerunLogger(stream, config or LoggerConfig(mds_every=MDS_EVERY, seed=0))
+    col = Collector()
+    run_many(trackers, seq, [col, logger])
+    return seq, col, logger
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rec") / "run.rrd"
+    trackers = [ManifoldTracker(ManifoldConfig(n_particles=N_PARTICLES), rng=3), IdentityTracker()]
+    seq, col, logger = record_run(path, trackers)
+    temporal, static = read_recording(path)
+    return {"path": path, "seq": seq, "col": col, "temporal": temporal, "static": static, "logger": logger}
+
+
+def test_recording_verifies(run):
+    res = rrd_verify(run["path"])
+    assert res.returncode == 0, res.stderr
+
+
+def test_entity_paths(run):
+    from rerun.chunk import RrdReader
+
+    paths = {p.lstrip("/") for p in RrdReader(str(run["path"])).store().schema().entity_paths()}
+    m, i = P.TrackerPaths("manifold"), P.TrackerPaths("identity")
+    expected = {
+        P.IMAGE,
+        P.GROUND_TRUTH,
+        P.DESCRIPTION,
+        P.CONFIG,
+        P.SUMMARY,
+        P.LOGGER_TIME,
+        m.box,
+        m.region,
+        m.particles,
+        m.top,
+        m.centres,
+        m.likelihood,
+        m.likelihood_peak,
+        m.background,
+        m.ess,
+        m.max_weight,
+        m.survivors,
+        m.distance_min,
+        m.distance_mean,
+        m.spread,
+        m.iou,
+        m.center_error,
+        m.tensors,
+        m.timing("total"),
+        m.timing("warp"),
+        m.cloud_kind("top"),
+        m.cloud_kind("template"),
+        m.cloud_kind("target"),
+        m.cloud_kind("background"),
+        m.cloud_kind("initial"),
+        m.cloud_kind("estimate"),
+        f"{m.cloud_zoom}/target",
+        f"{m.cloud_zoom}/top",
+        i.box,
+        i.iou,
+        i.center_error,
+    }
+    assert expected <= paths, sorted(expected - paths)
+    assert not any(p.startswith(i.particles) for p in paths)  # the identity tracker has no particles
+
+
+def test_every_frame_is_on_the_frame_timeline(run):
+    t = run["temporal"]
+    assert set(t[P.IMAGE]["EncodedImage:blob"]) == set(range(N_FRAMES))
+    assert set(boxes(t, P.TrackerPaths("identity").box)) == set(range(N_FRAMES))
+    # Particles exist from frame 1 (frame 0 is the initialisation).
+    assert set(t[P.TrackerPaths("manifold").particles]["LineStrips2D:strips"]) == set(range(1, N_FRAMES))
+    # The time timeline: seconds at the synthetic frame rate.
+    assert run["seq"].frame_rate
+
+
+def test_boxes_equal_the_records(run):
+    t = run["temporal"]
+    for j, name in enumerate(["manifold", "identity"]):
+        logged = boxes(t, P.TrackerPaths(name).box)
+        for f, recs in enumerate(run["col"].records):
+            np.testing.assert_allclose(logged[f], recs[j].box, rtol=1e-5, atol=1e-4)
+    gt = boxes(t, P.GROUND_TRUTH)
+    for f, frame in enumerate(run["col"].frames):
+        np.testing.assert_allclose(gt[f], frame.gt, rtol=1e-5, atol=1e-4)
+
+
+def test_particles_and_weights_equal_the_records(run):
+    t, q = run["temporal"], LoggerConfig().particle_precision
+    p = P.TrackerPaths("manifold")
+    strips = last(t, p.particles, "LineStrips2D:strips")
+    colors = last(t, p.particles, "LineStrips2D:colors")
+    top_w = last(t, p.top, "weight")
+    top_i = last(t, p.top, "particle")
+    top_strips = last(t, p.top, "LineStrips2D:strips")
+    for f in range(1, N_FRAMES):
+        rec = run["col"].records[f][0]
+        w = rec.weights
+        level = weight_levels(w)
+        order = np.argsort(level, kind="stable")
+        expected = np.concatenate([rec.particle_corners, rec.particle_corners[:, :1]], axis=1)[order]
+        got = np.array(strips[f], dtype=np.float64)
+        assert got.shape == (N_PARTICLES, 5, 2)
+        np.testing.assert_allclose(got, expected, atol=q / 2 + 1e-4)
+        np.testing.assert_array_equal(
+            np.array(colors[f], dtype=np.uint32),
+            _LUT[level[order]].astype(np.uint32) @ np.array([1 << 24, 1 << 16, 1 << 8, 1]),
+        )
+        # The top-k: the highest weights, exactly, with their particle indices and corners.
+        k = LoggerConfig().top_k
+        idx = np.argsort(-w, kind="stable")[:k]
+        np.testing.assert_allclose(top_w[f], w[idx], rtol=1e-12)
+        np.testing.assert_array_equal(top_i[f], idx)
+        np.testing.assert_allclose(np.array(top_strips[f])[:, :4], rec.particle_corners[idx], rtol=1e-6)
+
+
+def test_scalars_equal_the_records(run):
+    t = run["temporal"]
+    p = P.TrackerPaths("manifold")
+    ess, wmax = scalar_series(t, p.ess), scalar_series(t, p.max_weight)
+    dmin, dmean = scalar_series(t, p.distance_min), scalar_series(t, p.distance_mean)
+    total = scalar_series(t, p.timing("total"))
+    ious, ces = scalar_series(t, p.iou), scalar_series(t, p.center_error)
+    spread = scalar_series(t, p.spread)
+    assert set(spread) == set(range(1, N_FRAMES))
+    for f in range(N_FRAMES):
+        rec, frame = run["col"].records[f][0], run["col"].frames[f]
+        assert ious[f] == pytest.approx(float(iou(rec.box[None], frame.gt[None])[0]))
+        assert ces[f] == pytest.approx(float(center_error(rec.box[None], frame.gt[None])[0]))
+        assert total[f] == pytest.approx(rec.timings["total"] * 1e3)
+        if f == 0:
+            assert f not in ess
+            continue
+        w = rec.weights
+        assert ess[f] == pytest.approx(rec.ess / N_PARTICLES)
+        assert wmax[f] == pytest.approx(w.max())
+        assert dmin[f] == pytest.approx(rec.distances.min())
+        assert dmean[f] == pytest.approx(float(np.dot(w, rec.distances)))
+
+
+def test_tensors_equal_the_records(run):
+    """Template, observed descriptor and difference, in log space."""
+    from covviz.spd import logm
+
+    t = run["temporal"]
+    p = P.TrackerPaths("manifold")
+
+    for f in (0, 5):
+        rec = run["col"].records[f][0]
+        data = last(t, p.tensors, "Tensor:data")[f][0]
+        assert list(data["shape"]) == [3, 9, 9]
+        assert list(data["names"]) == ["matrix", "feature i", "feature j"]
+        template, observed, difference = np.asarray(data["buffer"], dtype=np.float64).reshape(3, 9, 9)
+        tol = {"rtol": 1e-5, "atol": 1e-6}
+        np.testing.assert_allclose(template, rec.estimate_template, **tol)
+        np.testing.assert_allclose(observed, logm(rec.estimate_descriptor), **tol)
+        np.testing.assert_allclose(difference, logm(rec.estimate_descriptor) - rec.estimate_template, **tol)
+
+
+def test_costly_diagnostics_only_on_their_frames(run):
+    t = run["temporal"]
+    p = P.TrackerPaths("manifold")
+    mds_frames = {f for f in range(N_FRAMES) if f % MDS_EVERY == 0}
+    assert set(t[p.cloud_kind("target")]["Points2D:positions"]) == mds_frames
+    assert set(t[p.cloud_kind("top")]["Points2D:positions"]) == mds_frames - {0}
+    assert set(t[p.likelihood]["Image:buffer"]) == mds_frames
+    # ... and cleared on the next frame, so a stale map never sits on a later frame.
+    assert {f + 1 for f in mds_frames if f + 1 < N_FRAMES} <= set(t[p.likelihood]["Clear:is_recursive"])
+    top = last(t, p.cloud_kind("top"), "Points2D:positions")
+    assert all(len(v) == LoggerConfig().top_k for v in top.values())
+
+
+def test_static_context(run):
+    s = run["static"]
+    description = static_text(s, P.DESCRIPTION)
+    assert "Reading a drift" in description and "Template cloud" in description
+    config = static_text(s, P.CONFIG)
+    assert "recording_id" in config and "likelihood_sigma" in config and "mds_every" in config
+    assert "| manifold |" in static_text(s, P.SUMMARY) and "| identity |" in static_text(s, P.SUMMARY)
+
+
+def test_recording_ids_are_unique():
+    a, b = new_recording(), new_recording()
+    assert a.get_recording_id() != b.get_recording_id()
+
+
+class _Broken:
+    """A tracker whose records carry bad arrays; the logger must skip them, not crash."""
+
+    name = "broken"
+
+    def __init__(self):
+        self.last_record = None
+        self.i = 0
+
+    def init(self, frame, box):
+        self.last_record = FrameRecord(index=0, box=np.array([np.nan, 1.0, 2.0, 3.0]), tracker=self.name)
+
+    def update(self, frame):
+        self.i += 1
+        n = 5
+        self.last_record = FrameRecord(
+            index=self.i,
+            box=np.array([1.0, 1.0, 10.0, 10.0]),
+            tracker=self.name,
+            particle_corners=np.zeros((n, 4, 2)),
+            log_weights=np.full(n + 1, -np.log(n + 1)),  # mismatched length
+            templates=np.full((n, 9, 9), np.inf),
+        )
+        return self.last_record.box
+
+
+def test_bad_arrays_are_validated_not_logged(tmp_path):
+    path = tmp_path / "bad.rrd"
+    record_run(path, [_Broken()], n_frames=4)
+    t, _ = read_recording(path)
+    p = P.TrackerPaths("broken")
+    assert set(boxes(t, p.box)) == {1, 2, 3}  # the NaN box of frame 0 was not logged
+    assert p.particles not in t
+    lines = texts(t, p.events)
+    assert any("box has NaN" in x for x in lines)
+    assert any("particle_corners has 5 particles" in x for x in lines)
+    assert any("templates has NaN" in x for x in lines)
+
+
+def test_duplicate_tracker_names_get_their_own_paths(tmp_path):
+    path = tmp_path / "dup.rrd"
+    record_run(path, [IdentityTracker(), IdentityTracker()], n_frames=3)
+    t, _ = read_recording(path)
+    assert P.TrackerPaths("identity").box in t and P.TrackerPaths("identity-2").box in t
+
+
+class _FailsAt(ManifoldTracker):
+    """A manifold tracker that raises inside ``update`` on one frame."""
+
+    def __init__(self, fail_at, **kw):
+        super().__init__(**kw)
+        self.fail_at = fail_at
+
+    def update(self, frame):
+        if self._index + 1 == self.fail_at:
+            raise RuntimeError("boom inside the tracker")
+        return super().update(frame)
+
+
+def test_an_exception_inside_the_tracker_leaves_a_valid_recording(tmp_path):
+    path = tmp_path / "interrupted.rrd"
+    with pytest.raises(RuntimeError, match="boom"):
+        record_run(path, [_FailsAt(6, config=ManifoldConfig(n_particles=30), rng=0)], n_frames=10)
+    assert rrd_verify(path).returncode == 0
+    t, s = read_recording(path)
+    assert set(t[P.IMAGE]["EncodedImage:blob"]) == set(range(6))
+    assert set(boxes(t, P.TrackerPaths("manifold").box)) == set(range(6))
+    assert "interrupted" in static_text(s, P.SUMMARY)
+    assert any("interrupted" in x for x in texts(t, P.TrackerPaths("manifold").events))
+
+
+def test_logger_config_is_validated():
+    with pytest.raises(ValueError):
+        LoggerConfig(jpeg_quality=0)
+    with pytest.raises(ValueError):
+        LoggerConfig(mds_every=-1)
+    assert LoggerConfig(mds_every=7).likelihood_period == 7
+    assert LoggerConfig(mds_every=7, likelihood_every=0).likelihood_period == 0
+
+
+def test_weight_levels():
+    w = np.array([1.0, 0.5, 1e-3, 1e-6])
+    lv = weight_levels(w)
+    assert lv[0] == 15 and lv[2] == 0 and lv[3] == 0 and 0 < lv[1] < 15
