@@ -27,10 +27,14 @@ import numpy as np
 
 
 def _set_threads(n: int | None) -> None:
+    """Limit BLAS (threadpoolctl) and OpenCV to ``n`` threads each."""
     if n is None:
         return
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ[var] = str(n)
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(n)
+    cv2.setNumThreads(n)
 
 
 def time_tracker(make, frames, box, repeat: int):
@@ -59,7 +63,10 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=150, help="frames to time (default 150)")
     ap.add_argument("--particles", default="300,600,1000", help="particle counts (default 300,600,1000)")
     ap.add_argument("--repeat", type=int, default=2, help="passes per tracker; the best is kept (default 2)")
-    ap.add_argument("--threads", type=int, default=None, help="limit BLAS threads (default: library default)")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="limit BLAS and OpenCV to this many threads (default: the libraries' own)")
+    ap.add_argument("--observe-threads", type=int, default=1,
+                    help="ManifoldConfig.threads: threads sharing the particles' descriptors (default 1)")
     args = ap.parse_args(argv)
     _set_threads(args.threads)
 
@@ -69,15 +76,13 @@ def main(argv=None) -> int:
     from covviz.trackers import make_tracker
     from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 
-    if args.threads is not None:
-        cv2.setNumThreads(args.threads)
     seq = open_sequence(args.sequence)
     n = min(args.frames + 1, len(seq))
     frames = [seq.frame(i).image for i in range(n)]
     box = seq.init_box
     H, W = frames[0].shape[:2]
     print(f"sequence {seq.name}: {W}x{H}, {n - 1} timed frames, best of {args.repeat}; "
-          f"{os.cpu_count()} cpus, OpenCV threads {cv2.getNumThreads()}")
+          f"{os.cpu_count()} cpus, OpenCV threads {cv2.getNumThreads()}, observe threads {args.observe_threads}")
 
     peers = {}
     for name in ("csrt", "ipca"):
@@ -95,7 +100,7 @@ def main(argv=None) -> int:
     print("\nmanifold tracker, mean ms per update() by stage")
     print(header)
     for k in (int(v) for v in args.particles.split(",")):
-        dt, st = time_tracker(lambda k=k: ManifoldTracker(ManifoldConfig(n_particles=k), rng=0), frames, box,
+        dt, st = time_tracker(lambda k=k: ManifoldTracker(ManifoldConfig(n_particles=k, threads=args.observe_threads), rng=0), frames, box,
                               args.repeat)
         row = f"{k:>9} {1e3 * dt:>9.2f} {1 / dt:>7.1f} " + " ".join(
             f"{1e3 * st.get(s, 0):>10.2f}" for s in stage_names)

@@ -84,8 +84,8 @@ class ManifoldConfig:
         Downsample the frame (area averaging) when the target is more than
         ~2 pixels per patch sample, so that the 32×32 warp does not alias.
     threads : int
-        Threads that compute the particles' descriptors (each takes a share of
-        the particles; results do not depend on it).
+        Threads that share the particles' descriptors and distances (2: the
+        cores of the machines we target). Results never depend on it.
     smooth_sigma : float
         Gaussian pre-smoothing of the frame (pixels of the possibly
         downsampled frame) before warping: tames sensor noise in the
@@ -106,7 +106,7 @@ class ManifoldConfig:
     resample_threshold: float = 1.0
     resampling: str = "systematic"
     antialias: bool = True
-    threads: int = 1
+    threads: int = 2
     smooth_sigma: float = 0.0
     gain_normalize: bool = True
 
@@ -219,7 +219,7 @@ class ManifoldTracker:
             g = cv2.GaussianBlur(g, (0, 0), self.config.smooth_sigma)
         return g
 
-    def _observe_chunk(self, gray: np.ndarray, poses: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float]]:
+    def _observe_chunk(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
         cfg = self.config
         t0 = time.perf_counter()
         P = warp_patches(gray, poses, self.base_wh, cfg.patch_size, 1, self._step_exact)
@@ -228,32 +228,57 @@ class ManifoldTracker:
         t2 = time.perf_counter()
         C = covariance(F, cfg.eps)
         t3 = time.perf_counter()
-        return C, (t1 - t0, t2 - t1, t3 - t2)
+        d = None if templates is None else riemann_distance_to_templates(templates, C)
+        t4 = time.perf_counter()
+        return C, d, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)
 
-    def _observe(self, gray: np.ndarray, poses: np.ndarray, timings: dict | None = None) -> np.ndarray:
-        """Descriptors at ``poses``; split over ``config.threads`` threads for large batches.
+    def _observe(self, gray: np.ndarray, poses: np.ndarray, templates=None, timings: dict | None = None):
+        """Descriptors at ``poses`` and, given templates, each one's distance to them.
 
-        Every particle's descriptor is computed independently, so the split
-        does not change any result. With threads, a stage's timing is its
-        summed time divided by the number of threads (its share of the wall time).
+        The particles are cut into fixed chunks of :data:`OBSERVE_CHUNK` that
+        ``config.threads`` threads share. Every chunk is computed the same way
+        whatever the thread count (SIMD kernels round an array's tail
+        differently, so the split itself must not depend on ``threads``), so
+        threads change the speed and never a box. With threads, a stage's
+        timing is its summed time divided by the threads (its share of the wall
+        time).
+
+        Returns
+        -------
+        C : ndarray, shape (n, 9, 9)
+        d : ndarray, shape (n,), or None without templates
         """
-        # Fixed chunks, whatever the thread count: SIMD kernels (arctan2,
-        # magnitude) round an array's tail differently, so the split must not
-        # depend on `threads` for the boxes to be identical bit for bit.
-        parts = [np.arange(i, min(i + OBSERVE_CHUNK, len(poses))) for i in range(0, len(poses), OBSERVE_CHUNK)]
+        parts = [slice(i, min(i + OBSERVE_CHUNK, len(poses))) for i in range(0, len(poses), OBSERVE_CHUNK)]
         k = min(self.config.threads, len(parts))
+
+        def work(sl):
+            return self._observe_chunk(gray, poses[sl], None if templates is None else templates[sl])
+
         if k <= 1:
-            outs = [self._observe_chunk(gray, poses[idx]) for idx in parts]
+            outs = [work(sl) for sl in parts]
         else:
             if self._pool is None:
-                self._pool = ThreadPoolExecutor(max_workers=k, thread_name_prefix="covviz-observe")
-            outs = list(self._pool.map(lambda idx: self._observe_chunk(gray, poses[idx]), parts))
+                self._pool = ThreadPoolExecutor(max_workers=self.config.threads, thread_name_prefix="covviz-observe")
+            outs = list(self._pool.map(work, parts))
         C = outs[0][0] if len(outs) == 1 else np.concatenate([o[0] for o in outs])
-        # Stage timings: summed over chunks, divided by the threads sharing them.
-        st = tuple(sum(o[1][j] for o in outs) / k for j in range(3))
+        d = None if templates is None else np.concatenate([o[1] for o in outs])
         if timings is not None:
-            timings["warp"], timings["features"], timings["covariance"] = st
-        return C
+            st = [sum(o[2][j] for o in outs) / k for j in range(4)]
+            timings["warp"], timings["features"], timings["covariance"] = st[:3]
+            if templates is not None:
+                timings["distances"] = st[3]
+        return C, d
+
+    def observe(self, frame: np.ndarray, poses) -> np.ndarray:
+        """Descriptors the tracker would observe at ``poses`` in ``frame``, ``(n, 9, 9)``.
+
+        The same preprocessing (grey, anti-aliasing, smoothing) and features as
+        in :meth:`update`; for diagnostics such as likelihood maps.
+        """
+        if self.particles is None:
+            raise RuntimeError("call init(frame, box) before observe(frame, poses)")
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
+        return self._observe(self._prepare(frame), poses)[0]
 
     def init(self, frame: np.ndarray, box) -> None:
         """Initialise every particle at ``box`` with the template observed there."""
@@ -270,7 +295,7 @@ class ManifoldTracker:
         H, W = np.shape(frame)[:2]
         self._step_exact = (W / gray.shape[1], H / gray.shape[0]) if self._step > 1 else 1.0
         pose = np.array([[x + w / 2, y + h / 2, 1.0, 0.0]])
-        C0 = self._observe(gray, pose)
+        C0 = self._observe(gray, pose)[0]
         L0 = logm(C0)[0]
         n = cfg.n_particles
         states = np.zeros((n, 6))
@@ -308,13 +333,10 @@ class ManifoldTracker:
         # 2. observe descriptors at every particle's pose
         gray = self._prepare(frame)
         poses = states[:, [0, 1, 4, 5]]
-        obs = self._observe(gray, poses, tm)
+        obs, d = self._observe(gray, poses, templates, tm)
 
         # 3. weigh
-        t = time.perf_counter()
-        d = riemann_distance_to_templates(templates, obs)
         t2 = time.perf_counter()
-        tm["distances"] = t2 - t
         lw = normalize_log_weights(ps.log_weights + log_likelihood(d, cfg.likelihood_sigma))
         ess = effective_sample_size(lw)
 
@@ -322,7 +344,7 @@ class ManifoldTracker:
         est_state = mmse(states, lw)
         est_pose = est_state[[0, 1, 4, 5]]
         est_template = mmse(templates, lw)
-        est_desc = self._observe(gray, est_pose[None])[0]
+        est_desc = self._observe(gray, est_pose[None])[0][0]
         box = pose_to_box(est_pose[None], self.base_wh)[0]
         t3 = time.perf_counter()
         tm["weights"] = t3 - t2

@@ -106,8 +106,9 @@ class ObservationModel:
     def from_tracker(cls, tracker) -> ObservationModel | None:
         """The observation model of a covariance tracker, or None if it has none.
 
-        Uses a public ``tracker.observe(image, poses)`` if the tracker has one,
-        else the manifold tracker's ``_prepare`` / ``_observe`` pair.
+        Uses the tracker's public ``observe(image, poses)`` (as
+        :meth:`covviz.trackers.manifold.ManifoldTracker.observe`), so the
+        diagnostics see exactly the descriptors the tracker sees.
         """
         base_wh = getattr(tracker, "base_wh", None)
         if base_wh is None:
@@ -115,9 +116,6 @@ class ObservationModel:
         public = getattr(tracker, "observe", None)
         if callable(public):
             return cls(lambda image: image, public, base_wh)
-        prep, obs = getattr(tracker, "_prepare", None), getattr(tracker, "_observe", None)
-        if callable(prep) and callable(obs):
-            return cls(prep, lambda gray, poses: obs(gray, poses), base_wh)
         return None
 
     def descriptors(self, prepared, poses: np.ndarray) -> np.ndarray:
