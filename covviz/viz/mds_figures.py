@@ -336,16 +336,8 @@ def save_pngs(sep: Separation | None, walk: RandomWalk | None, out_dir: Path, st
                     label=f"{label} ({m.sum()})",
                     edgecolors="none",
                 )
-            ax.set_title(f"{stem}: target vs background on the manifold (MDS)", fontsize=10)
-            ax.set_xlabel("MDS 1 (Riemannian distance units)")
-            ax.set_ylabel("MDS 2")
-            ax.set_aspect("equal", adjustable="datalim")
-            ax.legend(loc="best", fontsize=8)
-            fig.tight_layout()
-            path = out_dir / f"{stem}-mds-separation.png"
-            fig.savefig(path)
-            plt.close(fig)
-            written.append(path)
+            written.append(_finish(plt, fig, ax, f"{stem}: target vs background on the manifold (MDS)", 8,
+                                   out_dir / f"{stem}-mds-separation.png"))
         if walk is not None:
             fig, ax = plt.subplots(figsize=(6, 5.2), dpi=110)
             frames = sorted({int(f) for f in walk.frames[walk.kinds != "initial"]}) or [1]
@@ -395,14 +387,19 @@ def save_pngs(sep: Separation | None, walk: RandomWalk | None, out_dir: Path, st
                     label="initial template",
                 )
             ax.scatter([], [], s=60, color=rgb(RED), marker="*", label="target (frame)")
-            ax.set_title(f"{stem}: random walk of the templates (MDS)", fontsize=10)
-            ax.set_xlabel("MDS 1 (Riemannian distance units)")
-            ax.set_ylabel("MDS 2")
-            ax.set_aspect("equal", adjustable="datalim")
-            ax.legend(loc="best", fontsize=7)
-            fig.tight_layout()
-            path = out_dir / f"{stem}-mds-random-walk.png"
-            fig.savefig(path)
-            plt.close(fig)
-            written.append(path)
+            written.append(_finish(plt, fig, ax, f"{stem}: random walk of the templates (MDS)", 7,
+                                   out_dir / f"{stem}-mds-random-walk.png"))
     return written
+
+
+def _finish(plt, fig, ax, title: str, legend_size: int, path: Path) -> Path:
+    """Title, axes and legend of an MDS figure; save it to ``path`` and close it."""
+    ax.set_title(title, fontsize=10)
+    ax.set_xlabel("MDS 1 (Riemannian distance units)")
+    ax.set_ylabel("MDS 2")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(loc="best", fontsize=legend_size)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
