@@ -153,6 +153,9 @@ class LoggerConfig:
         The likelihood map every this many frames (default: ``mds_every``; 0: never).
     spread_every : int
         The template-cloud spread (a Karcher mean) every this many frames.
+    spread_templates : int
+        The spread is estimated on an evenly strided subset of this many
+        templates (the mean distance of a subset estimates the cloud's).
     top_k : int
         Particles drawn bold, and "top" templates in the cloud (the paper's 10).
     mds_max_templates : int
@@ -177,6 +180,7 @@ class LoggerConfig:
     mds_every: int = 10
     likelihood_every: int | None = None
     spread_every: int = 1
+    spread_templates: int = 32
     top_k: int = 10
     mds_max_templates: int = 48
     mds_method: str = "classical"
@@ -189,7 +193,7 @@ class LoggerConfig:
     events: EventConfig = field(default_factory=lambda: EVENT_DEFAULTS)
 
     def __post_init__(self):
-        for name in ("mds_every", "spread_every", "top_k", "n_background"):
+        for name in ("mds_every", "spread_every", "spread_templates", "top_k", "n_background"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.likelihood_every is not None and self.likelihood_every < 0:
@@ -718,7 +722,9 @@ class RerunLogger:
         templates = _checked(record.templates, (-1, -1, -1), "templates", problems)
         if templates is not None and len(templates) and cfg.spread_every and i % cfg.spread_every == 0:
             try:
-                spread, s.spread_mean = template_spread(templates, init=s.spread_mean)
+                spread, s.spread_mean = template_spread(
+                    templates, init=s.spread_mean, max_templates=cfg.spread_templates
+                )
                 rec.log(p.spread, rr.Scalars(spread))
             except (ValueError, np.linalg.LinAlgError) as exc:
                 problems.append(f"template spread failed ({exc})")
