@@ -243,6 +243,7 @@ def _recording_observers(args, seq, n_frames: int) -> tuple[list, Path | None]:
     if save is not None:
         _check_recording_path(save, n_frames, len(args.trackers))
     _check_viewer(args)
+    from covviz.runner import BackgroundObserver
     from covviz.viz.logger import (
         BATCH_SECONDS,
         BATCH_SECONDS_LIVE,
@@ -263,7 +264,8 @@ def _recording_observers(args, seq, n_frames: int) -> tuple[list, Path | None]:
         "max_frames": args.max_frames,
         "particles": args.particles,
     }
-    return [RerunLogger(stream, config, run_info=info)], save
+    # The recorder logs on its own thread, overlapping the tracker (runner.BackgroundObserver).
+    return [BackgroundObserver(RerunLogger(stream, config, run_info=info))], save
 
 
 def _check_out_dir(out: Path) -> None:

@@ -15,7 +15,9 @@ then re-raised.
 
 from __future__ import annotations
 
+import queue
 import sys
+import threading
 import time
 from collections.abc import Iterable, Sequence as Seq
 
@@ -24,7 +26,7 @@ import numpy as np
 from covviz.records import FrameRecord, RunResult
 from covviz.sequences import Frame, Sequence
 
-__all__ = ["Observer", "ResultCollector", "run", "run_many"]
+__all__ = ["BackgroundObserver", "Observer", "ResultCollector", "run", "run_many"]
 
 
 class Observer:
@@ -48,6 +50,75 @@ class ResultCollector(Observer):
 
     def on_end(self, results: Seq[RunResult]) -> None:
         self.results = list(results)
+
+
+class BackgroundObserver(Observer):
+    """Runs another observer's ``on_frame`` on a worker thread, behind a bounded queue.
+
+    Tracking goes on while the previous frames are being logged, so an
+    observer's cost overlaps the tracker's instead of adding to it. Records and
+    frames are never mutated after they are handed over, so nothing is copied.
+    ``on_end`` waits until every queued frame is done (an interrupted run keeps
+    all of them), then calls the wrapped ``on_end``. An exception in the worker
+    is raised again in the tracking thread at the next call.
+
+    Parameters
+    ----------
+    observer : object
+        Any observer (``on_start``/``on_frame``/``on_end``, all optional).
+    maxsize : int
+        Frames that may wait in the queue (bounds memory; the tracker blocks
+        when the observer is that far behind).
+    """
+
+    _STOP = object()
+
+    def __init__(self, observer, maxsize: int = 8) -> None:
+        self.observer = observer
+        self._queue: queue.Queue = queue.Queue(maxsize=maxsize)
+        self._error: BaseException | None = None
+        self._thread: threading.Thread | None = None
+
+    def _work(self) -> None:
+        while True:
+            item = self._queue.get()
+            try:
+                if item is self._STOP:
+                    return
+                if self._error is None:
+                    self.observer.on_frame(*item)
+            except BaseException as exc:  # noqa: BLE001 - handed to the tracking thread
+                self._error = exc
+            finally:
+                self._queue.task_done()
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            err, self._error = self._error, None
+            raise err
+
+    def on_start(self, sequence, trackers) -> None:
+        if hasattr(self.observer, "on_start"):
+            self.observer.on_start(sequence, trackers)
+        if hasattr(self.observer, "on_frame"):
+            self._thread = threading.Thread(target=self._work, name="covviz-observer", daemon=True)
+            self._thread.start()
+
+    def on_frame(self, frame, records) -> None:
+        self._raise()
+        if self._thread is not None:
+            self._queue.put((frame, records))
+
+    def on_end(self, results) -> None:
+        if self._thread is not None:
+            self._queue.put(self._STOP)
+            self._thread.join()
+            self._thread = None
+        try:
+            self._raise()
+        finally:
+            if hasattr(self.observer, "on_end"):
+                self.observer.on_end(results)
 
 
 def _progress(total: int, desc: str, enabled: bool):
