@@ -431,16 +431,12 @@ def bench(
         Empty root, unknown tracker, a folder from another run, a corrupt result.
     """
     from covviz.sequences import SequenceError, open_sequence
-    from covviz.trackers import STOCHASTIC, TRACKERS
+    from covviz.trackers import STOCHASTIC, tracker_names
 
-    trackers = list(dict.fromkeys(t.strip().lower() for t in trackers if t.strip()))
-    if not trackers:
-        raise BenchError("no trackers given; pass --trackers NAME[,NAME…]")
-    unknown = [t for t in trackers if t not in TRACKERS]
-    if unknown:
-        raise BenchError(
-            f"unknown tracker {', '.join(map(repr, unknown))}; choose from {', '.join(TRACKERS)}"
-        )
+    try:
+        trackers = tracker_names(trackers)
+    except ValueError as exc:
+        raise BenchError(str(exc)) from None
     if seeds < 1 or jobs < 1:
         raise BenchError("--seeds and --jobs must be at least 1")
     root = Path(root).resolve()

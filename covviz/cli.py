@@ -15,7 +15,6 @@ says what to fix), 130 interrupted.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
@@ -24,7 +23,6 @@ from pathlib import Path
 import numpy as np
 
 from covviz.bench import add_bench_parser, add_report_parser
-from covviz.metrics import evaluate
 from covviz.sequences import SequenceError, open_sequence
 
 log = logging.getLogger("covviz")
@@ -71,15 +69,13 @@ nonneg_int = _int_at_least(0, "an integer >= 0")
 
 
 def tracker_list(text: str) -> list[str]:
-    from covviz.trackers import TRACKERS
+    """argparse type for ``--trackers a,b``: the checked names."""
+    from covviz.trackers import tracker_names
 
-    names = [t.strip().lower() for t in text.split(",") if t.strip()]
-    bad = [n for n in names if n not in TRACKERS]
-    if bad or not names:
-        raise argparse.ArgumentTypeError(
-            f"unknown tracker {', '.join(bad) or text!r}; choose from {', '.join(TRACKERS)}"
-        )
-    return names
+    try:
+        return tracker_names(text.split(","))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 # --------------------------------------------------------------------------- #

@@ -10,7 +10,7 @@ import importlib
 
 from covviz.trackers.base import IdentityTracker, Tracker
 
-__all__ = ["IdentityTracker", "STOCHASTIC", "TRACKERS", "Tracker", "make_tracker"]
+__all__ = ["IdentityTracker", "STOCHASTIC", "TRACKERS", "Tracker", "make_tracker", "tracker_names"]
 
 #: name -> "module:factory"; each factory takes (n_particles=None, rng=None).
 TRACKERS = {
@@ -26,6 +26,24 @@ TRACKERS = {
 }
 #: Trackers whose output depends on the seed (run several seeds of these).
 STOCHASTIC = frozenset({"manifold", "ipca"})
+
+
+def tracker_names(names) -> list[str]:
+    """Normalise tracker names (strip, lower-case, drop blanks and repeats) and check them.
+
+    Raises
+    ------
+    ValueError
+        If no name is left, or a name is not in :data:`TRACKERS` (the message
+        lists the known names).
+    """
+    out = list(dict.fromkeys(n.strip().lower() for n in names if n.strip()))
+    if not out:
+        raise ValueError("no trackers given; pass --trackers NAME[,NAME…]")
+    unknown = [n for n in out if n not in TRACKERS]
+    if unknown:
+        raise ValueError(f"unknown tracker {', '.join(map(repr, unknown))}; choose from {', '.join(TRACKERS)}")
+    return out
 
 
 def make_tracker(name: str, rng=None, n_particles: int | None = None):
