@@ -42,13 +42,14 @@ def covariance(features: np.ndarray, eps: float = DEFAULT_EPS) -> np.ndarray:
     F = np.asarray(features)
     if F.ndim != 3 or F.shape[2] < 2:
         raise ValueError(f"features must have shape (n, d, N) with N >= 2; got {F.shape}")
-    n, d, N = F.shape
+    N = F.shape[2]
     # Raw second moments in one batched product (float32), mean correction in float64.
     # Cheaper than centring the (n, d, N) array first; accurate when the features
     # are roughly centred, as patch_features makes them.
     M = np.matmul(F, np.swapaxes(F, 1, 2)).astype(np.float64)
-    Fb = F.transpose(1, 0, 2)  # feature-major: contiguous for patch_features output
-    mu = (Fb.reshape(d * n, N) @ np.ones(N, dtype=F.dtype)).reshape(d, n).T.astype(np.float64) / N
+    # numpy's own (pairwise, float64) sum, not a BLAS product: BLAS splits long
+    # float32 sums differently by thread count, and the last bits would follow.
+    mu = np.sum(F, axis=2, dtype=np.float64) / N
     C = (M - N * mu[:, :, None] * mu[:, None, :]) / (N - 1)
     C = sym(C)
     return regularize(C, eps) if eps > 0 else C

@@ -336,6 +336,19 @@ def test_threads_do_not_change_the_boxes(synth):
         np.testing.assert_array_equal(one, two)
 
 
+def test_blas_threads_do_not_change_the_boxes(synth):
+    # BLAS splits long sums by thread count; the hot path keeps such sums out of
+    # BLAS, so `covviz bench` (BLAS threads = cores / jobs) replays `covviz track`
+    # (one BLAS thread) and a notebook with the library's defaults gets the same boxes.
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    runs = []
+    for k in (1, 2):
+        with threadpoolctl.threadpool_limits(k, user_api="blas"):
+            runs.append(run_frames(ManifoldTracker(ManifoldConfig(n_particles=600), rng=5), synth, 12))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1][-1].templates, runs[1][1][-1].templates)
+
+
 def _fields(rec: FrameRecord) -> dict:
     return {f.name: getattr(rec, f.name) for f in dataclasses.fields(rec)}
 
