@@ -133,10 +133,11 @@ def symmetric_noise(n: int, sigma, rng) -> np.ndarray:
     sigma = np.asarray(sigma, dtype=np.float64)
     d = sigma.shape[0]
     iu = np.triu_indices(d)
-    W = np.zeros((n, d, d))
-    W[:, iu[0], iu[1]] = rng.standard_normal((n, len(iu[0]))) * sigma[iu]
-    W = W + np.swapaxes(np.triu(W, 1), 1, 2)
-    return W
+    Z = rng.standard_normal((n, len(iu[0]))) * sigma[iu]
+    W = np.empty((n, d * d))
+    W[:, iu[0] * d + iu[1]] = Z  # upper triangle and diagonal
+    W[:, iu[1] * d + iu[0]] = Z  # its mirror (the diagonal again, same values)
+    return W.reshape(n, d, d)
 
 
 def template_walk(L: np.ndarray, sigma, rng) -> np.ndarray:

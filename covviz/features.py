@@ -105,17 +105,17 @@ def sample_grid(poses, base_wh, size: int = 32, border: int = 1, step: float = 1
     p = _poses(poses)
     g = size + 2 * border
     q = (np.arange(-border, size + border, dtype=np.float64) + 0.5) / size - 0.5
-    c, s = np.cos(p[:, 3]), np.sin(p[:, 3])
-    sw = (base_wh[0] * p[:, 2])[:, None, None]
-    sh = (base_wh[1] * p[:, 2])[:, None, None]
-    qx = q[None, None, :]
-    qy = q[None, :, None]
-    ox, oy = sw * qx, sh * qy
-    X = p[:, 0, None, None] + c[:, None, None] * ox - s[:, None, None] * oy
-    Y = p[:, 1, None, None] + s[:, None, None] * ox + c[:, None, None] * oy
     sx, sy = (step, step) if np.isscalar(step) else step
-    mx = (X * (1.0 / sx) - 0.5).astype(np.float32).reshape(-1, g, g)
-    my = (Y * (1.0 / sy) - 0.5).astype(np.float32).reshape(-1, g, g)
+    # Every grid is an affine image of the unit grid (1, qx, qy): one small
+    # product gives all of them, in the frame's (possibly downsampled) pixels.
+    c, s = np.cos(p[:, 3]), np.sin(p[:, 3])
+    sw, sh = base_wh[0] * p[:, 2], base_wh[1] * p[:, 2]
+    ax = np.stack([p[:, 0] / sx - 0.5, c * sw / sx, -s * sh / sx], axis=1)
+    ay = np.stack([p[:, 1] / sy - 0.5, s * sw / sy, c * sh / sy], axis=1)
+    qy, qx = np.meshgrid(q, q, indexing="ij")
+    basis = np.stack([np.ones(g * g), qx.ravel(), qy.ravel()])
+    mx = (ax @ basis).astype(np.float32).reshape(-1, g, g)
+    my = (ay @ basis).astype(np.float32).reshape(-1, g, g)
     return mx, my
 
 

@@ -11,12 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import logsumexp
 
 __all__ = [
     "ParticleSet",
     "effective_sample_size",
     "log_likelihood",
+    "logsumexp",
     "mmse",
     "multinomial_resample",
     "normalize_log_weights",
@@ -57,6 +57,22 @@ class ParticleSet:
         """The particles at ``idx`` (with uniform weights): applies a resampling."""
         n = len(idx)
         return ParticleSet(self.states[idx], self.templates[idx], np.full(n, -np.log(n)))
+
+
+def logsumexp(x: np.ndarray) -> float:
+    """``log Σ exp(x_i)`` of a 1-D array, without overflow or underflow.
+
+    The max-shifted sum, as :func:`scipy.special.logsumexp` computes it, without
+    its generality: that function's argument handling costs more than the sum
+    for the particle filter's few hundred weights.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.size == 0:
+        return -np.inf
+    m = x.max()
+    if not np.isfinite(m):  # all -inf (-> -inf), or an inf / nan entry (-> it)
+        return float(m) if not np.isnan(x).any() else np.nan
+    return float(m + np.log(np.sum(np.exp(x - m))))
 
 
 def normalize_log_weights(lw: np.ndarray) -> np.ndarray:

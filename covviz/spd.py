@@ -120,22 +120,30 @@ def expm(S: np.ndarray) -> np.ndarray:
     return _eig_apply(_check_square(S, "S"), np.exp)
 
 
-def expm_taylor(S: np.ndarray, order: int = 10) -> np.ndarray:
+def expm_taylor(S: np.ndarray, order: int = 11) -> np.ndarray:
     """Matrix exponential by scaling and squaring of a Taylor polynomial.
 
-    The same result as :func:`expm` (to ~1e-13 relative for symmetric input)
+    The same result as :func:`expm` (to ~1e-14 relative for symmetric input)
     using only batched matrix products, which for stacks of small matrices is
     several times faster than one ``eigh`` per matrix. The tracker's hot path
     uses it to turn log-space templates into covariances.
+
+    The polynomial is evaluated by the Paterson–Stockmeyer scheme: with ``X²``
+    and ``X³`` computed once, Horner's rule runs in powers of ``X³`` over
+    blocks ``c₀I + c₁X + c₂X²`` (element-wise sums), so degree 11 costs 5
+    matrix products instead of 10.
 
     Parameters
     ----------
     S : ndarray, shape (..., d, d)
         Symmetric matrices.
     order : int
-        Degree of the Taylor polynomial, applied after scaling to norm <= 1/4.
+        Degree of the Taylor polynomial, applied after scaling to norm <= 1/4
+        (truncation error ``4⁻¹²/12! ≈ 1e-16`` at the default).
     """
     S = _check_square(S, "S")
+    if order < 1:
+        raise ValueError(f"order must be at least 1, got {order}")
     d = S.shape[-1]
     eye = np.eye(d)
     # expm(S) = e^c expm(S - cI) with c = tr(S)/d: the shift is exact (cI commutes
@@ -145,9 +153,17 @@ def expm_taylor(S: np.ndarray, order: int = 10) -> np.ndarray:
     norm = np.abs(S).sum(axis=-1).max() if S.size else 0.0  # largest inf-norm in the batch
     k = max(0, int(np.ceil(np.log2(norm / 0.25)))) if norm > 0.25 else 0
     X = S / 2.0**k
-    E = eye + X / order
-    for j in range(order - 1, 0, -1):  # Horner: I + X/1 (I + X/2 (I + ... ))
-        E = eye + (X @ E) / j
+    coef = 1.0 / np.cumprod(np.r_[1.0, np.arange(1.0, order + 1)])  # 1/j!, j = 0..order
+    coef = np.r_[coef, np.zeros(-len(coef) % 3)].reshape(-1, 3)  # blocks of 3
+    X2 = X @ X
+    X3 = X2 @ X
+
+    def block(b):
+        return coef[b, 0] * eye + coef[b, 1] * X + coef[b, 2] * X2
+
+    E = block(len(coef) - 1)
+    for b in range(len(coef) - 2, -1, -1):  # Horner in X³
+        E = block(b) + X3 @ E
     for _ in range(k):
         E = E @ E
     return sym(np.exp(c) * E)

@@ -25,6 +25,9 @@ from covviz.particles import (
     normalize_log_weights,
     systematic_resample,
 )
+from covviz.particles import (
+    logsumexp as cv_logsumexp,
+)
 
 Z = 5.0  # tolerance in standard errors
 RESAMPLERS = [systematic_resample, multinomial_resample]
@@ -42,6 +45,31 @@ def make_set(rng, n=6, d=3):
 # --------------------------------------------------------------------------- #
 # normalisation
 # --------------------------------------------------------------------------- #
+@given(
+    st.lists(st.floats(-1e300, 1e300, allow_nan=False) | st.just(-np.inf), min_size=1, max_size=50)
+)
+@settings(max_examples=200, deadline=None)
+def test_logsumexp_matches_scipy(values):
+    x = np.array(values)
+    ours, ref = cv_logsumexp(x), float(logsumexp(x))
+    if np.isneginf(ref):
+        assert np.isneginf(ours)
+    else:
+        assert ours == pytest.approx(ref, rel=1e-13, abs=1e-13)
+
+
+@pytest.mark.parametrize(
+    "x, expected",
+    [([], -np.inf), ([-np.inf, -np.inf], -np.inf), ([0.0, np.inf], np.inf), ([0.0, np.nan], np.nan), ([1000.0, 1000.0], 1000.0 + np.log(2))],
+)
+def test_logsumexp_edge_cases(x, expected):
+    out = cv_logsumexp(np.array(x))
+    if np.isnan(expected):
+        assert np.isnan(out)
+    else:
+        assert out == pytest.approx(expected)
+
+
 def test_normalize_gives_logsumexp_zero(rng):
     lw = rng.normal(0, 30, 100)
     out = normalize_log_weights(lw)

@@ -1251,3 +1251,39 @@ def test_pairwise_logeuclid_is_accurate_for_close_pairs(rng):
     S = np.stack([X, 2.0 * X])
     D_SS = spd.pairwise_distance(S, S.copy(), metric="logeuclid")
     np.testing.assert_allclose(np.diag(D_SS), 0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("spread", [0.01, 0.3, 1.0, 3.0, 10.0])
+def test_expm_taylor_matches_closed_form(rng, spread):
+    """The tracker's product-only exponential against ``V exp(Λ) Vᵀ``, from tiny to large logs.
+
+    The matrices are built from their eigen-decomposition, so the exact
+    exponential is known (scipy's Padé ``expm`` is itself off by ~6e-13 at
+    ``spread=3``, more than this function). The bound is relative to each
+    matrix's largest entry: rounding of order ``d·eps`` per product, amplified
+    ~2^k by the ``k`` squarings.
+    """
+    V = [random_rotation(rng, 9) for _ in range(20)]
+    lam = [rng.normal(0.0, spread, 9) for _ in range(20)]
+    S = np.stack([from_eig(v, w) for v, w in zip(V, lam)])
+    ref = np.stack([from_eig(v, np.exp(w)) for v, w in zip(V, lam)])
+    out = spd.expm_taylor(S)
+    err = np.abs(out - ref).max(axis=(1, 2)) / np.abs(ref).max(axis=(1, 2))
+    X = S - np.trace(S, axis1=1, axis2=2)[:, None, None] / 9 * np.eye(9)
+    k = np.maximum(0, np.ceil(np.log2(np.abs(X).sum(axis=2).max() / 0.25)))  # squarings
+    assert err.max() < 9 * np.finfo(float).eps * 2.0**k
+    np.testing.assert_array_equal(out, np.swapaxes(out, -1, -2))
+    # and scipy agrees to its own accuracy
+    np.testing.assert_allclose(out, np.stack([sla.expm(s) for s in S]), rtol=0, atol=1e-11 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("order", [1, 2, 3, 4, 7])
+def test_expm_taylor_low_orders_are_taylor_polynomials(rng, order):
+    """Paterson–Stockmeyer blocks must give exactly the Taylor polynomial at any degree (no squaring)."""
+    from math import factorial
+
+    S = from_eig(random_rotation(rng, 5), rng.uniform(-0.1, 0.1, 5))  # norm < 1/4: no scaling
+    c = np.trace(S) / 5
+    X = S - c * np.eye(5)
+    poly = sum(np.linalg.matrix_power(X, j) / factorial(j) for j in range(order + 1))
+    np.testing.assert_allclose(spd.expm_taylor(S, order=order), np.exp(c) * poly, rtol=1e-14, atol=1e-15)
