@@ -47,9 +47,10 @@ def covariance(features: np.ndarray, eps: float = DEFAULT_EPS) -> np.ndarray:
     # Cheaper than centring the (n, d, N) array first; accurate when the features
     # are roughly centred, as patch_features makes them.
     M = np.matmul(F, np.swapaxes(F, 1, 2)).astype(np.float64)
-    # numpy's own (pairwise, float64) sum, not a BLAS product: BLAS splits long
-    # float32 sums differently by thread count, and the last bits would follow.
-    mu = np.sum(F, axis=2, dtype=np.float64) / N
+    # einsum's own summation loop, not a BLAS product (BLAS splits long float32
+    # sums differently by thread count, and the last bits would follow), and
+    # not np.sum (pairwise: 3-6x slower here).
+    mu = np.einsum("ndk->nd", F).astype(np.float64) / N
     C = (M - N * mu[:, :, None] * mu[:, None, :]) / (N - 1)
     C = sym(C)
     return regularize(C, eps) if eps > 0 else C
