@@ -25,6 +25,8 @@ All arrays are float32 for speed; coordinates are 0-based continuous pixels
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -80,6 +82,17 @@ def pose_to_box(poses, base_wh) -> np.ndarray:
     return np.stack([p[:, 0] - w / 2, p[:, 1] - h / 2, w, h], axis=1)
 
 
+@functools.lru_cache(maxsize=8)
+def _unit_grid(size: int, border: int) -> np.ndarray:
+    """Rows ``1, qx, qy`` of the unit sampling grid, ``(3, g·g)`` (read-only, cached)."""
+    g = size + 2 * border
+    q = (np.arange(-border, size + border, dtype=np.float64) + 0.5) / size - 0.5
+    qy, qx = np.meshgrid(q, q, indexing="ij")
+    basis = np.stack([np.ones(g * g), qx.ravel(), qy.ravel()])
+    basis.flags.writeable = False
+    return basis
+
+
 def sample_grid(poses, base_wh, size: int = 32, border: int = 1, step: float = 1.0):
     """Sampling coordinates of every pose's grid, for :func:`cv2.remap`.
 
@@ -104,7 +117,6 @@ def sample_grid(poses, base_wh, size: int = 32, border: int = 1, step: float = 1
     """
     p = _poses(poses)
     g = size + 2 * border
-    q = (np.arange(-border, size + border, dtype=np.float64) + 0.5) / size - 0.5
     sx, sy = (step, step) if np.isscalar(step) else step
     # Every grid is an affine image of the unit grid (1, qx, qy): one small
     # product gives all of them, in the frame's (possibly downsampled) pixels.
@@ -112,8 +124,7 @@ def sample_grid(poses, base_wh, size: int = 32, border: int = 1, step: float = 1
     sw, sh = base_wh[0] * p[:, 2], base_wh[1] * p[:, 2]
     ax = np.stack([p[:, 0] / sx - 0.5, c * sw / sx, -s * sh / sx], axis=1)
     ay = np.stack([p[:, 1] / sy - 0.5, s * sw / sy, c * sh / sy], axis=1)
-    qy, qx = np.meshgrid(q, q, indexing="ij")
-    basis = np.stack([np.ones(g * g), qx.ravel(), qy.ravel()])
+    basis = _unit_grid(size, border)
     mx = (ax @ basis).astype(np.float32).reshape(-1, g, g)
     my = (ay @ basis).astype(np.float32).reshape(-1, g, g)
     return mx, my
