@@ -18,7 +18,7 @@ import numpy as np
 from covviz.features import patch_features, warp_patches
 from covviz.spd import regularize, sym
 
-__all__ = ["DEFAULT_EPS", "covariance", "descriptors"]
+__all__ = ["DEFAULT_EPS", "QUADRANTS", "covariance", "descriptors", "quadrant_covariances"]
 
 #: Default shrinkage of :func:`covariance` (fraction of the mean variance added to the diagonal).
 DEFAULT_EPS = 1e-3
@@ -42,18 +42,75 @@ def covariance(features: np.ndarray, eps: float = DEFAULT_EPS) -> np.ndarray:
     F = np.asarray(features)
     if F.ndim != 3 or F.shape[2] < 2:
         raise ValueError(f"features must have shape (n, d, N) with N >= 2; got {F.shape}")
-    N = F.shape[2]
-    # Raw second moments in one batched product (float32), mean correction in float64.
-    # Cheaper than centring the (n, d, N) array first; accurate when the features
-    # are roughly centred, as patch_features makes them.
-    M = np.matmul(F, np.swapaxes(F, 1, 2)).astype(np.float64)
+    M, s = _moments(F)
+    return _finish(M, s, F.shape[2], eps)
+
+
+def _moments(F: np.ndarray):
+    """Raw second moments ``F Fᵀ`` and sums ``F 1`` over the last axis, float64."""
+    # Raw second moments in one batched product (float32), mean correction in
+    # float64 (_finish). Cheaper than centring the array first; accurate when
+    # the features are roughly centred, as patch_features makes them.
+    M = np.matmul(F, np.swapaxes(F, -1, -2)).astype(np.float64)
     # einsum's own summation loop, not a BLAS product (BLAS splits long float32
     # sums differently by thread count, and the last bits would follow), and
     # not np.sum (pairwise: 3-6x slower here).
-    mu = np.einsum("ndk->nd", F).astype(np.float64) / N
-    C = (M - N * mu[:, :, None] * mu[:, None, :]) / (N - 1)
-    C = sym(C)
+    s = np.einsum("...dk->...d", F).astype(np.float64)
+    return M, s
+
+
+def _finish(M: np.ndarray, s: np.ndarray, N: int, eps: float) -> np.ndarray:
+    """Unbiased covariance of ``N`` samples from raw moments, then regularised."""
+    mu = s / N
+    C = sym((M - N * mu[..., :, None] * mu[..., None, :]) / (N - 1))
     return regularize(C, eps) if eps > 0 else C
+
+
+#: The four sub-regions of :func:`quadrant_covariances`, in order.
+QUADRANTS = ("top-left", "top-right", "bottom-left", "bottom-right")
+
+
+def quadrant_covariances(features: np.ndarray, eps: float = DEFAULT_EPS):
+    """Covariance of the whole patch and of each of its four quadrants.
+
+    The sub-region covariances of Porikli, Tuzel and Meer [2]_: one whole-region
+    descriptor says *what* the region holds, but little about *where*; the
+    quadrants' descriptors pin the layout down. The whole region's moments are
+    the sums of the quadrants', so the five descriptors cost one pass of raw
+    moments (plus one copy that makes each quadrant's pixels contiguous).
+
+    Parameters
+    ----------
+    features : ndarray, shape (n, d, S·S)
+        Pixels in row-major order of an ``S x S`` patch, ``S`` even (as
+        :func:`~covviz.features.patch_features` returns).
+    eps : float
+        Shrinkage, as in :func:`covariance`.
+
+    Returns
+    -------
+    whole : ndarray, shape (n, d, d)
+        Equal to :func:`covariance` up to float32 summation order.
+    quadrants : ndarray, shape (n, 4, d, d)
+        In :data:`QUADRANTS` order.
+
+    References
+    ----------
+    .. [2] F. Porikli, O. Tuzel, P. Meer, "Covariance tracking using model
+       update based on Lie algebra", CVPR 2006.
+    """
+    F = np.asarray(features)
+    if F.ndim != 3:
+        raise ValueError(f"features must have shape (n, d, S*S); got {F.shape}")
+    n, d, N = F.shape
+    S = int(round(np.sqrt(N)))
+    if S * S != N or S % 2 or S < 4:
+        raise ValueError(f"quadrant_covariances needs an S x S patch with S even and >= 4; got {N} pixels")
+    h = S // 2
+    # (n, d, row-half, row, col-half, col) -> (n, quadrant, d, pixel), one copy.
+    Q = np.ascontiguousarray(F.reshape(n, d, 2, h, 2, h).transpose(0, 2, 4, 1, 3, 5)).reshape(n, 4, d, h * h)
+    M, s = _moments(Q)
+    return _finish(M.sum(axis=1), s.sum(axis=1), N, eps), _finish(M, s, h * h, eps)
 
 
 def descriptors(
