@@ -77,13 +77,14 @@ def quadrant_covariances(features: np.ndarray, eps: float = DEFAULT_EPS):
     descriptor says *what* the region holds, but little about *where*; the
     quadrants' descriptors pin the layout down. The whole region's moments are
     the sums of the quadrants', so the five descriptors cost one pass of raw
-    moments (plus one copy that makes each quadrant's pixels contiguous).
+    moments.
 
     Parameters
     ----------
-    features : ndarray, shape (n, d, S·S)
-        Pixels in row-major order of an ``S x S`` patch, ``S`` even (as
-        :func:`~covviz.features.patch_features` returns).
+    features : ndarray, shape (n, 4, d, (S/2)²) or (n, d, S·S)
+        Features by quadrant, as ``patch_features(..., quadrants=True)``
+        returns them (no copy), or of the whole patch in row-major pixel order
+        (``S`` even; regrouped by quadrant with one copy).
     eps : float
         Shrinkage, as in :func:`covariance`.
 
@@ -100,17 +101,23 @@ def quadrant_covariances(features: np.ndarray, eps: float = DEFAULT_EPS):
        update based on Lie algebra", CVPR 2006.
     """
     F = np.asarray(features)
-    if F.ndim != 3:
-        raise ValueError(f"features must have shape (n, d, S*S); got {F.shape}")
-    n, d, N = F.shape
-    S = int(round(np.sqrt(N)))
-    if S * S != N or S % 2 or S < 4:
-        raise ValueError(f"quadrant_covariances needs an S x S patch with S even and >= 4; got {N} pixels")
-    h = S // 2
-    # (n, d, row-half, row, col-half, col) -> (n, quadrant, d, pixel), one copy.
-    Q = np.ascontiguousarray(F.reshape(n, d, 2, h, 2, h).transpose(0, 2, 4, 1, 3, 5)).reshape(n, 4, d, h * h)
+    if F.ndim == 4 and F.shape[1] == 4:
+        Q = F
+    elif F.ndim == 3:
+        n, d, N = F.shape
+        S = int(round(np.sqrt(N)))
+        if S * S != N or S % 2 or S < 4:
+            raise ValueError(f"quadrant_covariances needs an S x S patch with S even and >= 4; got {N} pixels")
+        h = S // 2
+        # (n, d, row-half, row, col-half, col) -> (n, quadrant, d, pixel), one copy.
+        Q = np.ascontiguousarray(F.reshape(n, d, 2, h, 2, h).transpose(0, 2, 4, 1, 3, 5)).reshape(n, 4, d, h * h)
+    else:
+        raise ValueError(f"features must have shape (n, 4, d, P) or (n, d, S*S); got {F.shape}")
+    if Q.shape[-1] < 2:
+        raise ValueError(f"quadrants need at least 2 pixels each; got {Q.shape[-1]}")
     M, s = _moments(Q)
-    return _finish(M.sum(axis=1), s.sum(axis=1), N, eps), _finish(M, s, h * h, eps)
+    N = 4 * Q.shape[-1]
+    return _finish(M.sum(axis=1), s.sum(axis=1), N, eps), _finish(M, s, Q.shape[-1], eps)
 
 
 def descriptors(

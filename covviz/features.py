@@ -159,7 +159,9 @@ def warp_patches(gray: np.ndarray, poses, base_wh, size: int = 32, border: int =
     return out.reshape(n, g, g)
 
 
-def patch_features(patches: np.ndarray, border: int = 1, gain_normalize: bool = False) -> np.ndarray:
+def patch_features(
+    patches: np.ndarray, border: int = 1, gain_normalize: bool = False, quadrants: bool = False
+) -> np.ndarray:
     """The 9 per-pixel features of the interior of each patch.
 
     Parameters
@@ -171,13 +173,19 @@ def patch_features(patches: np.ndarray, border: int = 1, gain_normalize: bool = 
         intensity, which makes the descriptor invariant to a multiplicative
         illumination change ``I -> g·I`` (the paper's features are not: a gain
         rescales six of the nine, all but ``x, y`` and the angle).
+    quadrants : bool
+        Return the pixels grouped by quadrant (``S`` must be even), the layout
+        :func:`covviz.descriptor.quadrant_covariances` reads without a copy.
+        The values are those of the default layout, pixel for pixel.
 
     Returns
     -------
-    ndarray, shape (n, 9, S·S), float32
-        Features along axis 1 (in :data:`FEATURE_NAMES` order, scaled by
-        :data:`FEATURE_SCALE`), pixels along axis 2 (row-major). The array is a
-        view of a feature-major buffer (the fastest layout to fill).
+    ndarray, float32
+        ``(n, 9, S·S)``: features along axis 1 (in :data:`FEATURE_NAMES`
+        order, scaled by :data:`FEATURE_SCALE`), pixels along axis 2
+        (row-major). With ``quadrants``, ``(n, 4, 9, (S/2)²)``: quadrants
+        top-left, top-right, bottom-left, bottom-right, each row-major. The
+        array is a view of a feature-major buffer (the fastest layout to fill).
 
     Notes
     -----
@@ -192,17 +200,44 @@ def patch_features(patches: np.ndarray, border: int = 1, gain_normalize: bool = 
         raise ValueError(f"patches must have shape (n, S+2, S+2); got {P.shape}")
     n, g, _ = P.shape
     S = g - 2
-    F = np.empty((N_FEATURES, n, S, S), dtype=np.float32)
-    k = FEATURE_SCALE
-    u = (np.arange(S, dtype=np.float32) + 0.5) / S - 0.5
-    F[0] = u[None, None, :] * k[0]
-    F[1] = u[None, :, None] * k[1]
+    if quadrants and S % 2:
+        raise ValueError(f"quadrants need an even patch side, got {S}")
     if gain_normalize:
         # Mean of the interior; the floor keeps black patches finite.
-        g = P[:, 1:-1, 1:-1].mean(axis=(1, 2), keepdims=True)
-        P = P * (1.0 / np.maximum(g, 1e-3))
+        gain = P[:, 1:-1, 1:-1].mean(axis=(1, 2), keepdims=True)
+        P = P * (1.0 / np.maximum(gain, 1e-3))
+    mean = P[:, 1:-1, 1:-1].mean(axis=(1, 2), keepdims=True)
+    u = (np.arange(S, dtype=np.float32) + 0.5) / S - 0.5
+    if not quadrants:
+        F = np.empty((N_FEATURES, n, S, S), dtype=np.float32)
+        F[0] = u[None, None, :] * FEATURE_SCALE[0]
+        F[1] = u[None, :, None] * FEATURE_SCALE[1]
+        _fill_features(F, P, mean)
+        return F.reshape(N_FEATURES, n, S * S).transpose(1, 0, 2)
+    # Quadrant sub-patches with their one-pixel borders (a copy of the small
+    # intensity patches, not of the nine feature planes), the whole patch's
+    # coordinates and intensity mean, so that the quadrants' pixels are
+    # exactly those of the default layout.
+    h = S // 2
+    Pq = np.empty((n, 4, h + 2, h + 2), dtype=np.float32)
+    for q, (r, c) in enumerate(((0, 0), (0, h), (h, 0), (h, h))):
+        Pq[:, q] = P[:, r : r + h + 2, c : c + h + 2]
+    F = np.empty((N_FEATURES, n, 4, h, h), dtype=np.float32)
+    ux, uy = u.reshape(2, h), u.reshape(2, h)
+    F[0] = (ux[[0, 1, 0, 1], None, :] * FEATURE_SCALE[0])[None]
+    F[1] = (uy[[0, 0, 1, 1], :, None] * FEATURE_SCALE[1])[None]
+    _fill_features(F.reshape(N_FEATURES, 4 * n, h, h), Pq.reshape(4 * n, h + 2, h + 2), np.repeat(mean, 4, axis=0))
+    return F.reshape(N_FEATURES, n, 4, h * h).transpose(1, 2, 0, 3)
+
+
+def _fill_features(F: np.ndarray, P: np.ndarray, mean: np.ndarray) -> None:
+    """Features 2–8 of bordered patches ``P`` ``(m, s+2, s+2)`` into ``F[2:]`` ``(9, m, s, s)``.
+
+    ``mean`` ``(m, 1, 1)``: the intensity each patch's ``I`` feature is centred on.
+    """
+    k = FEATURE_SCALE
     C = P[:, 1:-1, 1:-1]
-    np.subtract(C, C.mean(axis=(1, 2), keepdims=True), out=F[2])
+    np.subtract(C, mean, out=F[2])
     F[2] *= k[2]
     # |Ix|, |Iy|: central differences [-1, 0, 1] / 2, scaled.
     np.subtract(P[:, 1:-1, 2:], P[:, 1:-1, :-2], out=F[3])
@@ -229,4 +264,3 @@ def patch_features(patches: np.ndarray, border: int = 1, gain_normalize: bool = 
     np.abs(F[8], out=F[8])
     F[7] *= k[7]
     F[8] *= k[8]
-    return F.reshape(N_FEATURES, n, S * S).transpose(1, 0, 2)

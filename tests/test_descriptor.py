@@ -349,10 +349,15 @@ def test_quadrant_covariances_equal_np_cov_of_explicit_sub_crops(rng, xy):
 
 
 def test_quadrant_whole_matches_covariance_and_quadrants_are_spd(rng):
-    F = patch_features(rng.random((6, S + 2, S + 2)).astype(np.float32))
+    P = rng.random((6, S + 2, S + 2)).astype(np.float32)
+    F = patch_features(P)
     whole, quads = quadrant_covariances(F)
     ref = covariance(F)
     np.testing.assert_allclose(whole, ref, atol=cov_tol(ref))
+    # The quadrant layout of patch_features gives the same matrices without the copy.
+    wq, qq = quadrant_covariances(patch_features(P, quadrants=True))
+    np.testing.assert_array_equal(wq, whole)
+    np.testing.assert_array_equal(qq, quads)
     assert np.all(np.linalg.eigvalsh(quads) > 0)
     # A constant patch: regularised, finite, SPD (no NaN from zero variances).
     whole, quads = quadrant_covariances(patch_features(np.full((1, S + 2, S + 2), 0.3, np.float32)))

@@ -311,3 +311,19 @@ def test_patch_features_rejects_bad_shapes(shape):
 def test_patch_features_needs_one_pixel_border():
     with pytest.raises(ValueError, match="border"):
         patch_features(np.zeros((1, S + 4, S + 4), dtype=np.float32), border=2)
+
+
+@pytest.mark.parametrize("gain_normalize", [False, True])
+def test_quadrant_layout_holds_the_same_values_pixel_for_pixel(rng, gain_normalize):
+    P = rng.random((3, S + 2, S + 2)).astype(np.float32)
+    F = patch_features(P, gain_normalize=gain_normalize)
+    Fq = patch_features(P, gain_normalize=gain_normalize, quadrants=True)
+    h = S // 2
+    assert Fq.shape == (3, 4, 9, h * h)
+    regrouped = F.reshape(3, 9, 2, h, 2, h).transpose(0, 2, 4, 1, 3, 5).reshape(3, 4, 9, h * h)
+    np.testing.assert_array_equal(Fq, regrouped)
+
+
+def test_quadrant_layout_needs_an_even_side():
+    with pytest.raises(ValueError, match="even"):
+        patch_features(np.zeros((1, 9, 9), dtype=np.float32), quadrants=True)
