@@ -127,9 +127,9 @@ def expm_taylor(S: np.ndarray, order: int = 11) -> np.ndarray:
 
     The same result as :func:`expm` (to ~1e-14 relative for symmetric input)
     using only batched matrix products, which for stacks of small matrices is
-    several times faster than one ``eigh`` per matrix (single-threaded: the
-    products hold the GIL). The recorder's diagnostics use it to turn
-    log-space templates into covariances.
+    several times faster than one ``eigh`` per matrix. The tracker uses it
+    for ``expm(-L/2)`` of every particle's template, and the recorder's
+    diagnostics to turn log-space templates into covariances.
 
     The polynomial is evaluated by the Paterson–Stockmeyer scheme: with ``X²``
     and ``X³`` computed once, Horner's rule runs in powers of ``X³`` over
