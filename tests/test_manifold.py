@@ -24,7 +24,14 @@ from covviz.metrics import iou
 from covviz.records import STAGES, FrameRecord
 from covviz.sequences import SyntheticSequence
 from covviz.trackers.base import IdentityTracker, Tracker, check_init_box
-from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker, make, riemann_distance_to_templates
+from covviz.trackers.manifold import (
+    ManifoldConfig,
+    ManifoldTracker,
+    make,
+    quadrant_distances,
+    quadrant_term,
+    riemann_distance_to_templates,
+)
 
 D = 9
 N_TRACK = 60  # frames of the tracking-quality test
@@ -154,6 +161,9 @@ def test_partly_outside_box_is_accepted(synth):
         ({"resample_threshold": -0.1}, "resample_threshold"),
         ({"smooth_sigma": -1.0}, "smooth_sigma"),
         ({"resampling": "stratified-ish"}, "resampling"),
+        ({"quadrant_weight": -1.0}, "quadrant_weight"),
+        ({"quadrant_weight": float("nan")}, "quadrant_weight"),
+        ({"patch_size": 31}, "even patch_size"),
     ],
 )
 def test_config_validation(kwargs, match):
@@ -404,3 +414,60 @@ def test_identity_tracker_returns_the_initial_box(synth):
         assert tr.last_record.index == i and tr.last_record.n_particles == 0
         b[0] = -1  # the caller's copy: the tracker's state is unaffected
     np.testing.assert_array_equal(tr.update(frames[3]), seq.init_box)
+
+
+# --------------------------------------------------------------------------- #
+# the quadrant term of the likelihood
+# --------------------------------------------------------------------------- #
+def test_quadrant_term_drops_the_largest():
+    q = np.array([[1.0, 2.0, 3.0, 10.0], [0.0, 0.0, 0.0, 0.0], [2.0, 2.0, 2.0, 2.0]])
+    np.testing.assert_allclose(quadrant_term(q), [(1 + 4 + 9) / 3, 0.0, 4.0])
+
+
+def test_quadrant_distances_are_jbld_and_near_riemann(rng):
+    ref = random_spd(rng, 4, 50.0)
+    # Nearby quadrants: 8 J tracks d² closely; far ones: still the exact divergence.
+    S = random_sym(rng, 12, 0.2).reshape(3, 4, D, D)
+    Q = spd.exp_map(ref[None], S)
+    q = quadrant_distances(Q, ref, spd.logdet(ref))
+    assert q.shape == (3, 4)
+    np.testing.assert_allclose(q, np.sqrt(8 * spd.jbld(ref[None], Q)), rtol=1e-12)
+    d = spd.distance_riemann(ref[None], Q)
+    np.testing.assert_allclose(q, d, rtol=0.02)
+    np.testing.assert_allclose(quadrant_distances(ref[None], ref, spd.logdet(ref)), 0.0, atol=1e-6)
+
+
+def test_weights_follow_the_likelihood_distances(synth):
+    """log w = normalise(-d_eff² / 2σ²) with d_eff² = d² + weight · quadrant_term(q), and the
+    diagnostics' likelihood_distances gives the same d_eff at a particle's pose and template."""
+    seq, frames = synth
+    cfg = ManifoldConfig(n_particles=40, quadrant_weight=0.7)
+    tr = ManifoldTracker(cfg, rng=3)
+    tr.init(frames[0], seq.init_box)
+    assert tr.quadrant_reference.shape == (4, D, D)
+    tr.update(frames[1])  # resamples: the next frame starts from uniform weights
+    tr.update(frames[2])
+    rec = tr.last_record
+    q, d_eff = rec.extras["quadrant_distances"], rec.extras["likelihood_distances"]
+    assert q.shape == (40, 4) and np.all(q >= 0)
+    np.testing.assert_allclose(d_eff, np.sqrt(rec.distances**2 + 0.7 * quadrant_term(q)), rtol=1e-12)
+    ll = -(d_eff**2) / (2 * cfg.likelihood_sigma**2)
+    np.testing.assert_allclose(rec.log_weights, ll - logsumexp(ll), atol=1e-9)
+    for i in (0, 17, 39):
+        di = tr.likelihood_distances(frames[2], rec.particle_poses[i], rec.templates[i])
+        np.testing.assert_allclose(di, d_eff[i : i + 1], rtol=1e-9)
+
+
+def test_quadrants_off_is_the_papers_likelihood(synth):
+    seq, frames = synth
+    tr = ManifoldTracker(ManifoldConfig(n_particles=30, quadrants=False), rng=3)
+    tr.init(frames[0], seq.init_box)
+    tr.update(frames[1])
+    rec = tr.last_record
+    assert tr.quadrant_reference is None and rec.extras["quadrant_distances"] is None
+    np.testing.assert_array_equal(rec.extras["likelihood_distances"], rec.distances)
+    np.testing.assert_allclose(
+        tr.likelihood_distances(frames[1], rec.particle_poses[:3], rec.templates[0]),
+        spd.distance_riemann(spd.expm(rec.templates[0]), rec.descriptors[:3]),
+        rtol=1e-9,
+    )

@@ -32,7 +32,8 @@ Each tracker lives under `trackers/<name>/`; the frame and the ground truth unde
   (weight divided by the frame's largest weight). The **bold green** ones are the top 10.
   **Dots**: particle centres, sized by weight. Hover a bold outline to read its weight and distance.
 * **Likelihood map** (every *k*-th frame, see `config`): the log-likelihood of the estimate's
-  template at positions around the estimate (±1 region size), from 20 nats below its best
+  template at positions around the estimate (±1 region size; with the tracker's quadrant term
+  when it has one, exactly as the particles are weighed), from 20 nats below its best
   position (transparent) to the best (bright yellow); the white dot is the best match.
   *A bright blob away from the target means the background matches the template as well as or
   better than the target does: the particles will go there.*

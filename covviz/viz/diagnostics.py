@@ -95,12 +95,17 @@ class ObservationModel:
         ``(prepared frame, poses (n, 4)) -> descriptors (n, d, d)``.
     base_wh : (float, float)
         Width and height of the target region at scale 1, pixels.
+    likelihood_distances : callable, optional
+        ``(prepared frame, poses (n, 4), template_log (d, d)) -> (n,)``: the
+        distance the tracker's likelihood uses (for instance with a quadrant
+        term). Without it, the plain ``d(expm(template_log), C*)``.
     """
 
-    def __init__(self, prepare, observe, base_wh):
+    def __init__(self, prepare, observe, base_wh, likelihood_distances=None):
         self.prepare = prepare
         self.observe = observe
         self.base_wh = (float(base_wh[0]), float(base_wh[1]))
+        self._likelihood_distances = likelihood_distances
 
     @classmethod
     def from_tracker(cls, tracker) -> ObservationModel | None:
@@ -115,7 +120,8 @@ class ObservationModel:
             return None
         public = getattr(tracker, "observe", None)
         if callable(public):
-            return cls(lambda image: image, public, base_wh)
+            dist = getattr(tracker, "likelihood_distances", None)
+            return cls(lambda image: image, public, base_wh, dist if callable(dist) else None)
         return None
 
     def descriptors(self, prepared, poses: np.ndarray) -> np.ndarray:
@@ -124,6 +130,14 @@ class ObservationModel:
         if len(poses) == 0:
             return np.zeros((0, 9, 9))
         return np.asarray(self.observe(prepared, poses), dtype=np.float64)
+
+    def likelihood_distances(self, prepared, poses: np.ndarray, template_log: np.ndarray) -> np.ndarray:
+        """The distance entering the tracker's likelihood at ``poses`` for a log-space template, ``(n,)``."""
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
+        if self._likelihood_distances is not None:
+            return np.asarray(self._likelihood_distances(prepared, poses, template_log), dtype=np.float64)
+        C = expm(np.asarray(template_log, dtype=np.float64))
+        return distance_riemann(C, self.descriptors(prepared, poses))
 
 
 def box_to_pose(box: np.ndarray, base_wh) -> np.ndarray:
@@ -157,7 +171,9 @@ class LikelihoodMap:
     Attributes
     ----------
     distances : ndarray, shape (g, g)
-        ``d(C_template, C*(x, y))`` at each grid position; rows run over y.
+        The distance the tracker's likelihood uses at each grid position
+        (``d(C_template, C*(x, y))``, plus the quadrant term when the tracker
+        has one); rows run over y.
     log_likelihood : ndarray, shape (g, g)
         ``-(d² - d_min²) / 2σ²``: the log-likelihood relative to the best
         position of the grid (0 at the best, negative elsewhere), nats.
@@ -224,9 +240,7 @@ def likelihood_map(
     xs, ys = cx + u * w, cy + u * h
     X, Y = np.meshgrid(xs, ys)
     poses = np.stack([X.ravel(), Y.ravel(), np.full(X.size, s), np.full(X.size, th)], axis=1)
-    obs = model.descriptors(prepared, poses)
-    C = expm(np.asarray(template_log, dtype=np.float64))
-    d = distance_riemann(C, obs).reshape(grid, grid)
+    d = model.likelihood_distances(prepared, poses, template_log).reshape(grid, grid)
     d2 = d * d
     ll = -(d2 - d2.min()) / (2.0 * sigma * sigma)
     i, j = np.unravel_index(np.argmin(d), d.shape)
