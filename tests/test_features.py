@@ -327,3 +327,10 @@ def test_quadrant_layout_holds_the_same_values_pixel_for_pixel(rng, gain_normali
 def test_quadrant_layout_needs_an_even_side():
     with pytest.raises(ValueError, match="even"):
         patch_features(np.zeros((1, 9, 9), dtype=np.float32), quadrants=True)
+
+
+def test_feature_scales_are_the_ones_the_doubling_shortcut_assumes():
+    """_fill_features gets the four scaled derivative planes from one doubled patch."""
+    k = FEATURE_SCALE
+    assert 0.5 * k[3] == 0.5 * k[4] == k[7] == k[8] == 2.0
+    assert k[3] == k[5] and k[2] == 1.0
