@@ -122,7 +122,8 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
         type=tracker_list,
         default=["manifold"],
         metavar="NAME[,NAME…]",
-        help="tracker(s) to run: manifold (default), ipca, identity, csrt, kcf, mil, mosse, medianflow, tld",
+        help="tracker(s) to run: manifold (default), manifold-paper (without the quadrant term: the paper's "
+        "likelihood), ipca, identity, csrt, kcf, mil, mosse, medianflow, tld",
     )
     p.add_argument("--particles", type=positive_int, help="number of particles (default: the tracker's own)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0): same seed, same boxes")

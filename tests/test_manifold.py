@@ -471,3 +471,18 @@ def test_quadrants_off_is_the_papers_likelihood(synth):
         spd.distance_riemann(spd.expm(rec.templates[0]), rec.descriptors[:3]),
         rtol=1e-9,
     )
+
+
+def test_manifold_paper_is_the_tracker_without_quadrants(synth):
+    from covviz.trackers import STOCHASTIC, make_tracker
+
+    seq, frames = synth
+    tr = make_tracker("manifold-paper", rng=5, n_particles=30)
+    assert tr.name == "manifold-paper" and "manifold-paper" in STOCHASTIC
+    assert tr.config == ManifoldConfig(n_particles=30, quadrants=False)
+    ref = ManifoldTracker(ManifoldConfig(n_particles=30, quadrants=False), rng=5)
+    for t in (tr, ref):
+        t.init(frames[0], seq.init_box)
+    for f in frames[1:4]:
+        np.testing.assert_array_equal(tr.update(f), ref.update(f))
+    assert tr.last_record.tracker == "manifold-paper"

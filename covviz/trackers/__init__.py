@@ -15,6 +15,7 @@ __all__ = ["IdentityTracker", "STOCHASTIC", "TRACKERS", "Tracker", "make_tracker
 #: name -> "module:factory"; each factory takes (n_particles=None, rng=None).
 TRACKERS = {
     "manifold": "covviz.trackers.manifold:make",
+    "manifold-paper": "covviz.trackers.manifold:make_paper",
     "ipca": "covviz.trackers.ipca:make",
     "identity": "covviz.trackers.base:make_identity",
     "csrt": "covviz.trackers.opencv:make_csrt",
@@ -25,7 +26,7 @@ TRACKERS = {
     "tld": "covviz.trackers.opencv:make_tld",
 }
 #: Trackers whose output depends on the seed (run several seeds of these).
-STOCHASTIC = frozenset({"manifold", "ipca"})
+STOCHASTIC = frozenset({"manifold", "manifold-paper", "ipca"})
 
 
 def tracker_names(names) -> list[str]:

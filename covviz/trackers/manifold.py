@@ -511,3 +511,11 @@ def make(n_particles: int | None = None, rng=None) -> ManifoldTracker:
     """Factory for the tracker registry: defaults, optionally another particle count."""
     cfg = ManifoldConfig() if n_particles is None else ManifoldConfig(n_particles=n_particles)
     return ManifoldTracker(cfg, rng)
+
+
+def make_paper(n_particles: int | None = None, rng=None) -> ManifoldTracker:
+    """Factory for ``manifold-paper``: the defaults without the quadrant term (the paper's likelihood)."""
+    kw = {} if n_particles is None else {"n_particles": n_particles}
+    tr = ManifoldTracker(ManifoldConfig(quadrants=False, **kw), rng)
+    tr.name = "manifold-paper"
+    return tr

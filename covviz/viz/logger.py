@@ -80,6 +80,7 @@ BACKGROUND_COLOR = (50, 120, 255)
 INITIAL_COLOR = (255, 255, 255)
 TRACKER_COLORS = {
     "manifold": (255, 196, 0),
+    "manifold-paper": (190, 255, 60),
     "ipca": (0, 210, 255),
     "identity": (190, 190, 190),
     "csrt": (255, 105, 180),
