@@ -1,6 +1,7 @@
 """Speed of the trackers' update(), side by side in one process.
 
-Prints, for the manifold tracker at 300 / 600 / 1000 particles, the mean
+Prints, for the manifold tracker at 300 / 600 / 1000 particles, with its
+quadrant term (the default) and without it (the paper's likelihood), the mean
 per-frame time of ``update()`` broken down by stage (propagate, warp, features,
 covariance, distances, weights, resample), its frames per second, and the ratio
 to OpenCV's CSRT (and the IPCA baseline, when available) run on the same
@@ -11,6 +12,7 @@ Usage::
     python benchmarks/speed.py                       # the synthetic 320x240 default
     python benchmarks/speed.py ../shared/sequences/Car1 --frames 200
     python benchmarks/speed.py --threads 1           # pin BLAS/OpenCV to one thread
+    python benchmarks/speed.py --quadrants on         # only the default tracker
 
 These machines are noisy: compare ratios measured side by side in one run, and
 use ``--repeat`` to take the best of several passes.
@@ -67,6 +69,9 @@ def main(argv=None) -> int:
                     help="limit BLAS and OpenCV to this many threads (default: the libraries' own)")
     ap.add_argument("--observe-threads", type=int, default=1,
                     help="ManifoldConfig.threads: threads sharing the particles' descriptors (default 1)")
+    ap.add_argument("--quadrants", choices=("both", "on", "off"), default="both",
+                    help="time the tracker with its quadrant term (on, the default tracker), without it "
+                         "(off, the paper's likelihood) or both, side by side (default both)")
     args = ap.parse_args(argv)
     _set_threads(args.threads)
 
@@ -95,21 +100,28 @@ def main(argv=None) -> int:
         peers[name] = time_tracker(make, frames, box, args.repeat)[0]
 
     stage_names = ("propagate", "warp", "features", "covariance", "distances", "weights", "resample")
-    header = f"{'particles':>9} {'ms/frame':>9} {'fps':>7} " + " ".join(f"{s:>10}" for s in stage_names)
+    header = f"{'quadrants':>9} {'particles':>9} {'ms/frame':>9} {'fps':>7} " + " ".join(f"{s:>10}" for s in stage_names)
     header += "".join(f" {'x ' + p:>8}" for p in peers)
     print("\nmanifold tracker, mean ms per update() by stage")
     print(header)
+    variants = {"both": (True, False), "on": (True,), "off": (False,)}[args.quadrants]
     for k in (int(v) for v in args.particles.split(",")):
-        dt, st = time_tracker(lambda k=k: ManifoldTracker(ManifoldConfig(n_particles=k, threads=args.observe_threads), rng=0), frames, box,
-                              args.repeat)
-        row = f"{k:>9} {1e3 * dt:>9.2f} {1 / dt:>7.1f} " + " ".join(
-            f"{1e3 * st.get(s, 0):>10.2f}" for s in stage_names)
-        row += "".join(f" {pt / dt:>8.2f}" for pt in peers.values())
-        print(row)
+        for quad in variants:
+            cfg = ManifoldConfig(n_particles=k, threads=args.observe_threads, quadrants=quad)
+            dt, st = time_tracker(lambda cfg=cfg: ManifoldTracker(cfg, rng=0), frames, box, args.repeat)
+            _row(k, quad, dt, st, stage_names, peers)
     for p, pt in peers.items():
         print(f"{p}: {1e3 * pt:.2f} ms/frame, {1 / pt:.1f} fps")
     print("\n'x csrt' = CSRT's time / manifold's time on the same frames (>1: manifold is faster).")
     return 0
+
+
+def _row(k, quad, dt, st, stage_names, peers) -> None:
+    """Print one table row: quadrants, particles, ms, fps, stages, ratios to the peers."""
+    row = f"{'on' if quad else 'off':>9} {k:>9} {1e3 * dt:>9.2f} {1 / dt:>7.1f} " + " ".join(
+        f"{1e3 * st.get(s, 0):>10.2f}" for s in stage_names)
+    row += "".join(f" {pt / dt:>8.2f}" for pt in peers.values())
+    print(row)
 
 
 if __name__ == "__main__":
