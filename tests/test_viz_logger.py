@@ -139,6 +139,8 @@ def test_particles_and_weights_equal_the_records(run):
     top_w = last(t, p.top, "weight")
     top_i = last(t, p.top, "particle")
     top_strips = last(t, p.top, "LineStrips2D:strips")
+    top_d, top_dl = last(t, p.top, "distance"), last(t, p.top, "likelihood_distance")
+    top_q = [last(t, p.top, f"quadrant_distance_{j}") for j in range(4)]
     for f in range(1, N_FRAMES):
         rec = run["col"].records[f][0]
         w = rec.weights
@@ -158,6 +160,12 @@ def test_particles_and_weights_equal_the_records(run):
         np.testing.assert_allclose(top_w[f], w[idx], rtol=1e-12)
         np.testing.assert_array_equal(top_i[f], idx)
         np.testing.assert_allclose(np.array(top_strips[f])[:, :4], rec.particle_corners[idx], rtol=1e-6)
+        # What each top particle was weighed by: the template distance, the likelihood's
+        # distance (with the quadrant term) and the four quadrant distances.
+        np.testing.assert_allclose(top_d[f], rec.distances[idx], rtol=1e-12)
+        np.testing.assert_allclose(top_dl[f], rec.extras["likelihood_distances"][idx], rtol=1e-12)
+        for j in range(4):
+            np.testing.assert_allclose(top_q[j][f], rec.extras["quadrant_distances"][idx, j], rtol=1e-12)
 
 
 def test_scalars_equal_the_records(run):

@@ -676,6 +676,15 @@ class RerunLogger:
             dist = _checked(record.distances, (len(w),), "distances", problems)
             if dist is not None:
                 top_any["distance"] = dist[top]
+            # Trackers whose weights use more than d(C, C*) (the manifold tracker's quadrant
+            # term) say so in extras: hovering a top particle shows what it was weighed by.
+            d_lik = _checked(record.extras.get("likelihood_distances"), (len(w),), "likelihood_distances", problems)
+            if d_lik is not None and d_lik is not dist:
+                top_any["likelihood_distance"] = d_lik[top]
+            d_quad = _checked(record.extras.get("quadrant_distances"), (len(w), -1), "quadrant_distances", problems)
+            if d_quad is not None:
+                for j in range(d_quad.shape[1]):
+                    top_any[f"quadrant_distance_{j}"] = d_quad[top, j]
             rec.log(
                 p.top,
                 rr.LineStrips2D(
