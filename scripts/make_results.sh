@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerate docs/results.md and docs/img/bench_*.png from a full benchmark on the shared sequences:
-# the manifold tracker and IPCA with 3 seeds, CSRT, KCF and MIL once, every sequence under ROOT.
+# the manifold tracker (with and without its quadrant term) and IPCA with 3 seeds, CSRT, KCF and MIL once, every sequence under ROOT.
 # Resumable: run it again after an interruption and finished runs are kept.
 #
 #   bash scripts/make_results.sh [ROOT] [RUNS_DIR]
@@ -10,6 +10,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=${1:-../shared/sequences}
 RUNS=${2:-runs/bench}
-covviz bench "$ROOT" --trackers manifold,ipca,csrt,kcf,mil --seeds 3 --jobs 2 --out "$RUNS" --no-report
+covviz bench "$ROOT" --trackers manifold,manifold-paper,ipca,csrt,kcf,mil --seeds 3 --jobs 2 --out "$RUNS" --no-report
 covviz report "$RUNS" --out docs/results.md
 echo "wrote docs/results.md and docs/img/bench_*.png from $RUNS"
