@@ -30,7 +30,9 @@ Each tracker lives under `trackers/<name>/`; the frame and the ground truth unde
   the thin outline of the same colour is the estimated rotated region.
 * **green outlines**: every particle's region, brighter and more opaque the higher its weight
   (weight divided by the frame's largest weight). The **bold green** ones are the top 10.
-  **Dots**: particle centres, sized by weight. Hover a bold outline to read its weight and distance.
+  **Dots**: particle centres, sized by weight. Hover a bold outline to read its weight and distance
+  (for `manifold`, also the distance it was weighed by, quadrant term included, and its four
+  quadrant distances).
 * **Likelihood map** (every *k*-th frame, see `config`): the log-likelihood of the estimate's
   template at positions around the estimate (±1 region size; with the tracker's quadrant term
   when it has one, exactly as the particles are weighed), from 20 nats below its best
