@@ -27,7 +27,7 @@ their distances, the weight uses
 (:func:`covviz.spd.jbld`), which equals the affine-invariant distance to
 second order and costs Cholesky factorisations instead of eigensolvers. The
 paper's per-particle templates are unchanged; ``quadrants=False`` gives the
-paper's tracker exactly.
+paper's likelihood exactly (the tracker ``manifold-paper``).
 
 Reference: the paper in ``shared/paper.tex``, sections 2–3.
 """
@@ -57,7 +57,13 @@ from covviz.records import FrameRecord
 from covviz.spd import expm_taylor, jbld, logdet, logm
 from covviz.trackers.base import check_init_box, to_gray
 
-__all__ = ["ManifoldConfig", "ManifoldTracker", "riemann_distance_to_templates"]
+__all__ = [
+    "ManifoldConfig",
+    "ManifoldTracker",
+    "quadrant_distances",
+    "quadrant_term",
+    "riemann_distance_to_templates",
+]
 
 #: Particles per descriptor batch (the unit of work of the observation threads).
 OBSERVE_CHUNK = 150
@@ -200,8 +206,9 @@ def riemann_distance_to_templates(L: np.ndarray, B: np.ndarray) -> np.ndarray:
     eigenvalues of the pair are those of ``E B E``: one matrix exponential
     (:func:`covviz.spd.expm_taylor`, batched products only), two products and
     ``eigvalsh``. Equal to ``covviz.spd.distance_riemann(B, expm(L))`` to
-    ~1e-12 relative, at about half the cost of an ``eigh`` of every template
-    (measured side by side: 4.4–4.5 vs 4.9–5.1 ms per frame at 600 particles).
+    ~1e-12 relative, and cheaper than an ``eigh`` of every template (the
+    distances stage at 600 particles, side by side: 4.4–4.5 vs 4.9–5.1 ms a
+    frame).
     The Taylor scaling is chosen per batch, so a distance can differ in the
     last bits with the batch it is computed in; the tracker's batches are
     fixed (:data:`OBSERVE_CHUNK`), so its boxes do not.
@@ -359,6 +366,7 @@ class ManifoldTracker:
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(max_workers=self.config.threads, thread_name_prefix="covviz-observe")
             outs = list(self._pool.map(work, parts))
+
         def cat(j):
             if outs[0][j] is None:
                 return None
@@ -396,6 +404,10 @@ class ManifoldTracker:
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
         L = np.broadcast_to(np.asarray(template_log, dtype=np.float64), (len(poses), N_FEATURES, N_FEATURES))
         _, _, d, q = self._observe(self._prepare(frame), poses, np.ascontiguousarray(L))
+        return self._likelihood_distance(d, q)
+
+    def _likelihood_distance(self, d: np.ndarray, q: np.ndarray | None) -> np.ndarray:
+        """``sqrt(d² + quadrant_weight · quadrant_term(q))``, or ``d`` without quadrants."""
         return d if q is None else np.sqrt(d * d + self.config.quadrant_weight * quadrant_term(q))
 
     def init(self, frame: np.ndarray, box) -> None:
@@ -458,7 +470,7 @@ class ManifoldTracker:
 
         # 3. weigh
         t2 = time.perf_counter()
-        d_eff = d if q is None else np.sqrt(d * d + cfg.quadrant_weight * quadrant_term(q))
+        d_eff = self._likelihood_distance(d, q)
         lw = normalize_log_weights(ps.log_weights + log_likelihood(d_eff, cfg.likelihood_sigma))
         ess = effective_sample_size(lw)
 
@@ -502,7 +514,12 @@ class ManifoldTracker:
             estimate_template=est_template,
             estimate_descriptor=est_desc,
             timings=tm,
-            extras={"modes": modes, "velocity": est_state[2:4], "quadrant_distances": q, "likelihood_distances": d_eff},
+            extras={
+                "modes": modes,
+                "velocity": est_state[2:4],
+                "quadrant_distances": q,
+                "likelihood_distances": d_eff,
+            },
         )
         return box
 
