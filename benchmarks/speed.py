@@ -92,7 +92,7 @@ def main(argv=None) -> int:
     peers = {}
     for name in ("csrt", "ipca"):
         try:
-            make = lambda name=name: make_tracker(name, rng=0)  # noqa: E731
+            make = lambda name=name: make_tracker(name, rng=0)
             make()
         except (ImportError, ValueError, AttributeError) as exc:
             print(f"  ({name} unavailable: {exc})")

@@ -276,13 +276,13 @@ def _check_out_dir(out: Path) -> None:
 
 
 def cmd_track(args) -> int:
-    from covviz.results import save_result
-    from covviz.runner import ResultCollector, run_many
-    from covviz.trackers import make_tracker
-
     # BLAS threads only contend with the tracker's own threads on 9x9 matrices:
     # one BLAS thread halves the CPU time at the same speed.
     from threadpoolctl import threadpool_limits
+
+    from covviz.results import save_result
+    from covviz.runner import ResultCollector, run_many
+    from covviz.trackers import make_tracker
 
     threadpool_limits(1, user_api="blas")
     seq = open_sequence(args.sequence, box=args.box)
@@ -411,11 +411,11 @@ def add_mds_parser(sub) -> argparse.ArgumentParser:
 
 
 def cmd_mds(args) -> int:
-    from covviz.viz.mds_figures import MDSFiguresConfig, random_walk_data, separation_data
-
     # BLAS threads only contend with the tracker's own threads on 9x9 matrices:
     # one BLAS thread halves the CPU time at the same speed.
     from threadpoolctl import threadpool_limits
+
+    from covviz.viz.mds_figures import MDSFiguresConfig, random_walk_data, separation_data
 
     threadpool_limits(1, user_api="blas")
     seq = open_sequence(args.sequence, box=args.box)

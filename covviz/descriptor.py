@@ -105,7 +105,7 @@ def quadrant_covariances(features: np.ndarray, eps: float = DEFAULT_EPS):
         Q = F
     elif F.ndim == 3:
         n, d, N = F.shape
-        S = int(round(np.sqrt(N)))
+        S = round(np.sqrt(N))
         if S * S != N or S % 2 or S < 4:
             raise ValueError(f"quadrant_covariances needs an S x S patch with S even and >= 4; got {N} pixels")
         h = S // 2

@@ -102,7 +102,7 @@ def propagate_kinematics(states: np.ndarray, model: KinematicModel, base_size: f
     n = len(s)
     modes = (rng.random(n) < model.mode_probs[1]).astype(np.int8)
     z = rng.standard_normal((n, 5))
-    pick = lambda pair: np.asarray(pair, dtype=np.float64)[modes]  # noqa: E731
+    pick = lambda pair: np.asarray(pair, dtype=np.float64)[modes]
     size = base_size * s[:, SCALE]
     out = np.empty_like(s)
     out[:, VX] = model.velocity_decay * s[:, VX] + pick(model.vel_sigma) * size * z[:, 0]

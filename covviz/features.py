@@ -34,9 +34,9 @@ __all__ = [
     "FEATURE_NAMES",
     "FEATURE_SCALE",
     "N_FEATURES",
+    "patch_features",
     "pose_corners",
     "pose_to_box",
-    "patch_features",
     "sample_grid",
     "warp_patches",
 ]

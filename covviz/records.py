@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["FrameRecord", "RunResult", "STAGES"]
+__all__ = ["STAGES", "FrameRecord", "RunResult"]
 
 #: Names of the timed stages of a manifold-tracker update, in execution order.
 STAGES = ("propagate", "warp", "features", "covariance", "distances", "weights", "resample")

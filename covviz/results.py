@@ -56,7 +56,7 @@ def save_result(result: RunResult, out_dir: str | Path, extra: dict | None = Non
         "sequence": result.sequence,
         "tracker": result.tracker,
         "seed": result.seed,
-        "n_frames": int(len(result.boxes)),
+        "n_frames": len(result.boxes),
         "interrupted": bool(result.interrupted),
         "fps": result.fps,
         "metrics": metrics,

@@ -19,7 +19,8 @@ import queue
 import sys
 import threading
 import time
-from collections.abc import Iterable, Sequence as Seq
+from collections.abc import Iterable
+from collections.abc import Sequence as Seq
 
 import numpy as np
 

@@ -166,5 +166,5 @@ def test_core_modules_import_without_rerun():
         "    if loaded:\n"
         "        print(m, loaded[:3]); sys.exit(1)\n"
     )
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert p.returncode == 0, f"importing {p.stdout.strip()} pulled in rerun\n{p.stderr[-2000:]}"

@@ -31,8 +31,8 @@ PARTICLES = 100
 def track_flags() -> set[str]:
     """Option strings of ``covviz track`` as the parser defines them right now."""
     parser = cli.build_parser()
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))  # noqa: SLF001
-    return {s for a in sub.choices["track"]._actions for s in a.option_strings}  # noqa: SLF001
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return {s for a in sub.choices["track"]._actions for s in a.option_strings}
 
 
 def quiet_flags() -> list[str]:
@@ -129,7 +129,7 @@ def test_same_seed_gives_identical_box_files(runs):
 
 def test_identity_tracker_on_otb_folder(tmp_path):
     seq = make_otb(tmp_path / "Tiny")
-    code, stdout, stderr = run_main(track(str(seq), "--tracker", "identity", "--out", str(tmp_path / "out")))
+    code, _stdout, stderr = run_main(track(str(seq), "--tracker", "identity", "--out", str(tmp_path / "out")))
     assert code == 0, stderr
     rows = (tmp_path / "out" / "Tiny" / "identity_s0.txt").read_text().splitlines()
     assert rows == ["5.00,5.00,10.00,8.00"] * 3  # 1-based in, 1-based out
@@ -195,7 +195,7 @@ BAD_INPUTS = [_missing, _no_frames, _empty_folder, _unreadable_first, _unreadabl
 def test_bad_input_exit_2_with_one_line(tmp_path, case):
     args, hint = case(tmp_path)
     out = tmp_path / "results"
-    code, stdout, stderr = run_main(track(*args, "--out", str(out), "--particles", "10"))
+    code, _stdout, stderr = run_main(track(*args, "--out", str(out), "--particles", "10"))
     assert code == 2
     lines = [line for line in stderr.splitlines() if line.strip()]
     assert len(lines) == 1, stderr
@@ -229,6 +229,7 @@ def test_console_script_exit_code(tmp_path):
         capture_output=True,
         text=True,
         timeout=120,
+        check=False,
     )
     assert p.returncode == 2
     lines = [line for line in p.stderr.splitlines() if line.strip()]

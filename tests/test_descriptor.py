@@ -256,7 +256,7 @@ def test_quarter_turn_pose_swaps_ix_and_iy(rng):
 
 def test_rotated_image_swaps_ix_and_iy_and_matches_positive_theta(rng):
     W = 80
-    yy, xx = np.mgrid[0:W, 0:W]
+    _yy, xx = np.mgrid[0:W, 0:W]
     gray = (0.5 + 0.3 * np.sin(xx / 1.7) + 0.02 * rng.standard_normal((W, W))).astype(np.float32)
     rot = np.ascontiguousarray(np.rot90(gray))  # a quarter turn counter-clockwise on screen
     C0 = desc_at(gray, 24, 30, eps=0.0)

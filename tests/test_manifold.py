@@ -308,10 +308,10 @@ def test_template_sigma_matrix_is_honoured(synth):
 
 def test_large_target_is_downsampled_and_still_spd(synth):
     """A box of > 4 px per patch sample goes through the anti-aliasing path."""
-    seq, frames = synth
+    _seq, frames = synth
     tr = ManifoldTracker(ManifoldConfig(n_particles=16), rng=4)
     tr.init(frames[0], [60, 40, 150, 140])
-    assert tr._step > 1  # noqa: SLF001 - the path under test
+    assert tr._step > 1
     box = tr.update(frames[1])
     assert np.all(np.isfinite(box))
     check_record(tr.last_record, tr, 1)

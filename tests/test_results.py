@@ -74,7 +74,7 @@ def test_save_does_not_modify_result(tmp_path, rng):
 def test_no_seed_and_extra_fields(tmp_path, rng):
     res = make_result(rng, seed=None, tracker="identity")
     save_result(res, tmp_path, extra={"note": "hello"})
-    txt, js = result_paths(tmp_path, "seqA", "identity", None)
+    _txt, js = result_paths(tmp_path, "seqA", "identity", None)
     assert js.name == "identity.json"
     doc, _ = load_result(js)
     assert doc["seed"] is None and doc["note"] == "hello"

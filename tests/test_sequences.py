@@ -156,7 +156,7 @@ def test_otb_invalid_rows_become_missing(tmp_path, missing_line):
 def test_init_box_raises_when_first_frame_has_no_groundtruth(tmp_path):
     seq = OTBSequence(make_otb(tmp_path, n_frames=2, gt_text="0,0,0,0\n2,2,5,5\n"))
     with pytest.raises(SequenceError, match="first frame has no ground-truth box"):
-        seq.init_box
+        _ = seq.init_box
 
 
 def test_init_box_is_a_copy(tmp_path):
@@ -530,7 +530,7 @@ def test_read_write_round_trip_with_missing_rows(tmp_path, rng):
         np.testing.assert_allclose(back, boxes, atol=BOX_ROUND_TRIP_ATOL, equal_nan=True)
 
 
-finite = dict(allow_nan=False, allow_infinity=False)
+finite = {"allow_nan": False, "allow_infinity": False}
 box_strategy = st.tuples(
     st.floats(-1000, 5000, **finite),
     st.floats(-1000, 5000, **finite),

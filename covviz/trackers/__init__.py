@@ -10,7 +10,7 @@ import importlib
 
 from covviz.trackers.base import IdentityTracker, Tracker
 
-__all__ = ["IdentityTracker", "STOCHASTIC", "TRACKERS", "Tracker", "make_tracker", "tracker_names"]
+__all__ = ["STOCHASTIC", "TRACKERS", "IdentityTracker", "Tracker", "make_tracker", "tracker_names"]
 
 #: name -> "module:factory"; each factory takes (n_particles=None, rng=None).
 TRACKERS = {

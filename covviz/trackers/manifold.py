@@ -159,8 +159,9 @@ class ManifoldConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not np.isfinite(v):
                 raise ValueError(f"{name} must be a finite number, got {v!r}")
+        # Every bad config value is a ValueError (one kind for callers and the CLI to report).
         if not isinstance(self.n_particles, (int, np.integer)):
-            raise ValueError(f"n_particles must be an integer, got {self.n_particles!r}")
+            raise ValueError(f"n_particles must be an integer, got {self.n_particles!r}")  # noqa: TRY004
         if self.n_particles < 2:
             raise ValueError(f"n_particles must be at least 2, got {self.n_particles}")
         if not self.likelihood_sigma > 0:
