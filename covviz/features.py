@@ -225,9 +225,9 @@ def patch_features(
     for q, (r, c) in enumerate(((0, 0), (0, h), (h, 0), (h, h))):
         Pq[:, q] = P[:, r : r + h + 2, c : c + h + 2]
     F = np.empty((N_FEATURES, n, 4, h, h), dtype=np.float32)
-    ux, uy = u.reshape(2, h), u.reshape(2, h)
-    F[0] = (ux[[0, 1, 0, 1], None, :] * FEATURE_SCALE[0])[None]
-    F[1] = (uy[[0, 0, 1, 1], :, None] * FEATURE_SCALE[1])[None]
+    halves = u.reshape(2, h)  # coordinates of the first and the second half of a side
+    F[0] = (halves[[0, 1, 0, 1], None, :] * FEATURE_SCALE[0])[None]
+    F[1] = (halves[[0, 0, 1, 1], :, None] * FEATURE_SCALE[1])[None]
     _fill_features(F.reshape(N_FEATURES, 4 * n, h, h), Pq.reshape(4 * n, h + 2, h + 2), np.repeat(mean, 4, axis=0))
     return F.reshape(N_FEATURES, n, 4, h * h).transpose(1, 2, 0, 3)
 
@@ -240,7 +240,8 @@ def _fill_features(F: np.ndarray, P: np.ndarray, mean: np.ndarray) -> None:
     k = FEATURE_SCALE
     C = P[:, 1:-1, 1:-1]
     np.subtract(C, mean, out=F[2])
-    F[2] *= k[2]
+    if k[2] != 1.0:
+        F[2] *= k[2]
     # The four derivative planes are all scaled by 2 (0.5·k[3] for |Ix| and
     # |Iy|, k[7] for |Ixx| and |Iyy|). Doubling the small patch once is exact
     # in binary floating point, so the differences of the doubled patch are
