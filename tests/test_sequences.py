@@ -779,8 +779,13 @@ def test_real_vot15_bag_loads_as_otb():
     assert isinstance(seq, OTBSequence)
     assert len(seq) == 196 and np.all(np.isfinite(seq.groundtruth))
     assert seq.frame(0).image.shape == (360, 480, 3)
-    # groundtruth_rect.txt is the axis-aligned hull of the polygons in groundtruth_orig.txt.
+    # groundtruth_rect.txt is the axis-aligned hull of VOT's polygons (groundtruth_orig.txt, 0-based
+    # pixels), written 1-based like every OTB file: read as 1-based it is the hull, as 0-based it is
+    # the hull shifted by one pixel right and down.
     hull = read_boxes(folder / "groundtruth_orig.txt", one_based=False)
-    rect = read_boxes(folder / "groundtruth_rect.txt", one_based=False)
+    rect = read_boxes(folder / "groundtruth_rect.txt", one_based=True)
     assert hull.shape == rect.shape == (196, 4)
     np.testing.assert_allclose(rect, hull, atol=0.01)
+    np.testing.assert_allclose(seq.groundtruth, hull, atol=0.01)
+    raw = read_boxes(folder / "groundtruth_rect.txt", one_based=False)
+    np.testing.assert_allclose(raw - rect, np.tile([1.0, 1.0, 0.0, 0.0], (196, 1)), atol=1e-9)
