@@ -13,9 +13,10 @@ The flow is got-10k's (run → results on disk → report)::
 
 Seeds
     Stochastic trackers (:data:`covviz.trackers.STOCHASTIC`) run with seeds
-    ``0 … K-1``; seed ``s`` draws from ``SeedSequence(s).spawn(1)[0]``, exactly as
-    ``covviz track --tracker NAME --seed s`` does, so any bench run can be
-    replayed (and recorded in the viewer) with ``covviz track``. Deterministic
+    ``0 … K-1``; seed ``s`` gives the tracker the stream of
+    :func:`covviz.trackers.tracker_rng`, exactly as ``covviz track --seed s``
+    does, so any bench run can be replayed (and recorded in the viewer) with
+    ``covviz track``. Deterministic
     trackers run once (seed ``None`` in their results).
 
 Processes
@@ -40,7 +41,6 @@ The manifest
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import os
@@ -51,33 +51,27 @@ from collections.abc import Sequence as Seq
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from covviz import __version__
+from covviz.errors import InputError
+from covviz.results import MANIFEST_FORMAT, MANIFEST_NAME, read_manifest, write_manifest
+from covviz.threads import limit_threads
 
 __all__ = [
-    "MANIFEST_FORMAT",
-    "MANIFEST_NAME",
     "BenchError",
     "Job",
-    "add_bench_parser",
-    "add_report_parser",
     "bench",
     "find_sequences",
     "plan_jobs",
+    "run_job",
 ]
 
 log = logging.getLogger("covviz.bench")
 
-#: File name of the manifest inside a bench's --out folder.
-MANIFEST_NAME = "bench_manifest.json"
-#: Format tag of the manifest; a folder with another tag is refused.
-MANIFEST_FORMAT = "covviz-bench/1"
 #: Manifest fields that define a run: results made with other values are not comparable.
 IDENTITY_FIELDS = ("root", "max_frames", "particles", "covviz")
 
 
-class BenchError(ValueError):
+class BenchError(InputError):
     """Bad input to ``bench`` or ``report``: printed as one line, exit code 2."""
 
 
@@ -190,13 +184,6 @@ def plan_jobs(
     )
 
 
-def _rng_for(seed: int | None) -> np.random.Generator | None:
-    """The generator of seed ``s``: ``SeedSequence(s).spawn(1)[0]``, as ``covviz track --seed s``."""
-    if seed is None:
-        return None
-    return np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
-
-
 def _jsonable(obj):
     """What ``obj`` becomes after a round trip through a results JSON (to compare configs)."""
     from covviz.results import _json_default
@@ -239,26 +226,15 @@ class _FailureCounter:
             self.failed.append(int(frame.index))
 
 
-_THREAD_LIMITS = None  # keeps the threadpoolctl limiter alive in a worker process
-
-
-def _init_worker(threads: int) -> None:
-    """Worker start-up: leave Ctrl-C to the parent; cap OpenCV and BLAS threads."""
-    global _THREAD_LIMITS
+def _init_worker() -> None:
+    """Worker start-up: leave Ctrl-C to the parent."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    import cv2
-
-    cv2.setNumThreads(threads)
-    try:
-        from threadpoolctl import threadpool_limits
-
-        _THREAD_LIMITS = threadpool_limits(limits=threads)
-    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
-        pass
 
 
 def run_job(job: Job, out_dir: str, threads: int | None = None, jobs: int = 1) -> dict:
     """Run one job and write its result (atomically); return a short summary.
+
+    ``threads`` OpenCV/BLAS threads while it runs (None: as they are).
 
     The JSON gets, besides the standard result fields, the OTB curves (so the
     report can plot them without the sequence), the thresholds they use, the
@@ -278,10 +254,11 @@ def run_job(job: Job, out_dir: str, threads: int | None = None, jobs: int = 1) -
     from covviz.trackers import make_tracker
 
     seq = open_sequence(job.path)
-    tracker = make_tracker(job.tracker, rng=_rng_for(job.seed), n_particles=job.particles)
+    tracker = make_tracker(job.tracker, seed=job.seed, n_particles=job.particles)
     failures = _FailureCounter()
     t0 = time.perf_counter()
-    res = run(tracker, seq, [failures], max_frames=job.max_frames, seed=job.seed)
+    with limit_threads(threads):
+        res = run(tracker, seq, [failures], max_frames=job.max_frames, seed=job.seed)
     wall = time.perf_counter() - t0
     extra = {
         "curves": {
@@ -301,28 +278,6 @@ def run_job(job: Job, out_dir: str, threads: int | None = None, jobs: int = 1) -
 # --------------------------------------------------------------------------- #
 # manifest and resume
 # --------------------------------------------------------------------------- #
-def _read_manifest(out: Path) -> dict | None:
-    p = out / MANIFEST_NAME
-    if not p.exists():
-        return None
-    try:
-        m = json.loads(p.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, OSError) as exc:
-        raise BenchError(
-            f"{p}: corrupt bench manifest ({exc.__class__.__name__}); delete it or use --force"
-        ) from None
-    if not isinstance(m, dict) or m.get("format") != MANIFEST_FORMAT:
-        raise BenchError(f"{p}: not a covviz bench manifest; choose a new --out")
-    return m
-
-
-def _write_manifest(out: Path, manifest: dict) -> None:
-    p = out / MANIFEST_NAME
-    tmp = p.with_name(p.name + ".part")
-    tmp.write_text(json.dumps(manifest, indent=1) + "\n")
-    os.replace(tmp, p)
-
-
 def _existing_results(out: Path) -> list[Path]:
     return sorted(out.glob("*/*.json"))
 
@@ -477,7 +432,7 @@ def bench(
         "max_frames": max_frames,
         "particles": particles,
     }
-    old = None if force else _read_manifest(out)  # --force also replaces a corrupt manifest
+    old = None if force else read_manifest(out)  # --force also replaces a corrupt manifest
     manifest = _merge_manifest(old, manifest, out, force)
     manifest["stochastic"] = sorted(set(manifest["trackers"]) & STOCHASTIC)
     manifest["configs"] = {**((old or {}).get("configs") or {}), **configs}
@@ -485,7 +440,7 @@ def bench(
     all_jobs = plan_jobs(sequences, trackers, seeds, particles, max_frames)
     todo = all_jobs if force else [j for j in all_jobs if not _is_done(j, out, configs[j.tracker])]
     skipped = len(all_jobs) - len(todo)
-    _write_manifest(out, manifest)
+    write_manifest(out, manifest)
     if skipped:
         log.info(
             "%d of %d jobs already done in %s; running the other %d", skipped, len(all_jobs), out, len(todo)
@@ -534,7 +489,6 @@ def _run_jobs(
         max_workers=min(jobs, len(todo)),
         mp_context=ctx,
         initializer=_init_worker,
-        initargs=(threads,),
         max_tasks_per_child=1,
     )
     bar = tqdm(
@@ -571,131 +525,3 @@ def _run_jobs(
         raise
     ex.shutdown(wait=True)
     return done_labels, failed
-
-
-# --------------------------------------------------------------------------- #
-# command line
-# --------------------------------------------------------------------------- #
-BENCH_EPILOG = """\
-examples:
-  covviz bench ../shared/sequences --trackers csrt,kcf,mil --out runs/peers
-  covviz bench ../shared/sequences --trackers manifold,ipca,csrt,kcf,mil --seeds 3 --jobs 2 --out runs/bench
-  covviz bench ../shared/sequences/Car4 --trackers manifold --seeds 5 --max-frames 200 --out runs/car4
-  covviz report runs/bench --out docs/results.md     # rebuild the report elsewhere
-
-Results go to OUT/<sequence>/<tracker>_s<seed>.txt (boxes, OTB results format, 1-based)
-and .json (metrics, per-frame times, config, seed); deterministic trackers have no _s<seed>.
-Run the same command again to resume: finished results are kept and skipped. Adding
-trackers or seeds to a folder extends it. Seed s of a stochastic tracker reproduces
-'covviz track SEQ --tracker NAME --seed s'.
-"""
-
-REPORT_EPILOG = """\
-examples:
-  covviz report runs/bench                           # runs/bench/report.md + runs/bench/img/*.png
-  covviz report runs/bench --out docs/results.md     # docs/results.md + docs/img/*.png
-
-The report is rebuilt from the result files only; nothing is re-run. Figures go to
-img/ next to the markdown file and are linked with relative paths.
-"""
-
-
-def add_bench_parser(sub) -> argparse.ArgumentParser:
-    from covviz.cli import positive_int
-    from covviz.trackers import TRACKERS
-
-    p = sub.add_parser(
-        "bench",
-        help="run trackers on every sequence under a folder; write results and a report",
-        description="Run each tracker on each sequence under ROOT (K seeds for the stochastic trackers, "
-        "once for the others), in J worker processes; write per-frame boxes and a JSON per run to --out "
-        "as each finishes (resumable), then the report (see 'covviz report').",
-        epilog=BENCH_EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    p.add_argument("root", type=Path, help="a sequence folder (OTB or VOT layout) or a folder of them")
-    p.add_argument(
-        "--trackers",
-        "--tracker",
-        dest="trackers",
-        default="manifold,ipca,csrt,kcf,mil",
-        metavar="NAME[,NAME…]",
-        help=f"trackers to run (default: manifold,ipca,csrt,kcf,mil); from {', '.join(TRACKERS)}",
-    )
-    p.add_argument(
-        "--seeds", type=positive_int, default=3, metavar="K", help="seeds per stochastic tracker (default 3)"
-    )
-    p.add_argument("--jobs", type=positive_int, default=1, metavar="J", help="worker processes (default 1)")
-    p.add_argument(
-        "--out", type=Path, default=Path("runs/bench"), help="results folder (default: runs/bench)"
-    )
-    p.add_argument(
-        "--max-frames", type=positive_int, metavar="N", help="run only the first N frames of each sequence"
-    )
-    p.add_argument(
-        "--particles", type=positive_int, help="particles of the stochastic trackers (default: their own)"
-    )
-    p.add_argument(
-        "--force", action="store_true", help="re-run every job, even into a folder from another run"
-    )
-    p.add_argument("--no-report", action="store_true", help="do not write the report at the end")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_bench)
-    return p
-
-
-def add_report_parser(sub) -> argparse.ArgumentParser:
-    p = sub.add_parser(
-        "report",
-        help="rebuild the markdown report and figures of a bench from its result files",
-        description="Read the results of 'covviz bench' in DIR and write a markdown report: tables per "
-        "sequence and overall (success AUC, P@20, r_on_track, rms_on_track, fps; mean ± std over seeds), "
-        "the OTB success and precision plots, and the paper's bar charts (manifold against ipca).",
-        epilog=REPORT_EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    p.add_argument("dir", type=Path, help="results folder written by 'covviz bench'")
-    p.add_argument(
-        "--out", type=Path, help="markdown file to write (default: DIR/report.md); figures go to its img/"
-    )
-    p.set_defaults(func=cmd_report)
-    return p
-
-
-def cmd_bench(args) -> int:
-    t0 = time.perf_counter()
-    summary = bench(
-        args.root,
-        args.trackers.split(","),
-        args.out,
-        seeds=args.seeds,
-        jobs=args.jobs,
-        max_frames=args.max_frames,
-        particles=args.particles,
-        force=args.force,
-        progress=not args.no_progress,
-        report=not args.no_report,
-    )
-    n_failed = len(summary["failed"])
-    print(
-        f"bench: {summary['run']} runs done, {summary['skipped']} already done, {n_failed} failed "
-        f"({time.perf_counter() - t0:.1f} s); results in {args.out}/"
-    )
-    if summary["report"] is not None:
-        print(f"report: {summary['report']}")
-    if n_failed:
-        print(
-            f"covviz bench: {n_failed} runs failed "
-            f"(first: {summary['failed'][0][0]}: {summary['failed'][0][1]})",
-            file=sys.stderr,
-        )
-        return 1
-    return 0
-
-
-def cmd_report(args) -> int:
-    from covviz.report import write_report
-
-    path = write_report(args.dir, args.out)
-    print(f"report: {path}")
-    return 0

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from covviz.bench import add_bench_parser, add_report_parser
-from covviz.sequences import SequenceError, open_sequence
+from covviz.errors import InputError
+from covviz.sequences import open_sequence
 
 log = logging.getLogger("covviz")
 
@@ -31,8 +31,8 @@ EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
 
-class UsageError(ValueError):
-    """Bad input from the user: printed as one line, exit code 2."""
+class UsageError(InputError):
+    """Bad input on the command line: printed as one line, exit code 2."""
 
 
 # --------------------------------------------------------------------------- #
@@ -275,29 +275,37 @@ def _check_out_dir(out: Path) -> None:
         raise UsageError(f"cannot write to {out}: {exc.strerror or exc}; choose another --out") from None
 
 
-def cmd_track(args) -> int:
-    # BLAS threads only contend with the tracker's own threads on 9x9 matrices:
-    # one BLAS thread halves the CPU time at the same speed.
-    from threadpoolctl import threadpool_limits
-
-    from covviz.results import save_result
-    from covviz.runner import ResultCollector, run_many
+def _make_trackers(names: list[str], seed: int, particles: int | None) -> list:
+    """The trackers of a run, each with the stream of ``seed`` (:func:`covviz.trackers.tracker_rng`)."""
     from covviz.trackers import make_tracker
 
-    threadpool_limits(1, user_api="blas")
+    try:
+        return [make_tracker(name, seed=seed, n_particles=particles) for name in names]
+    except ValueError as exc:  # a config value the tracker refuses (e.g. --particles)
+        raise UsageError(str(exc)) from None
+
+
+def cmd_track(args) -> int:
+    # One native thread for BLAS and OpenCV while tracking: more only contend with the
+    # tracker's own threads on 9x9 matrices (one BLAS thread halves the CPU time at the same speed).
+    from covviz.threads import limit_threads
+
+    with limit_threads(1):
+        return _track(args)
+
+
+def _track(args) -> int:
+    from covviz.results import save_result
+    from covviz.runner import ResultCollector, run_many
+    from covviz.trackers.base import check_init_box
+
     seq = open_sequence(args.sequence, box=args.box)
     if len(seq) < 2:
         raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
     first = seq.frame(0)  # fail early on an unreadable first frame or a bad box
-    from covviz.trackers.base import check_init_box
-
     check_init_box(seq.init_box, first.image.shape)
     _check_out_dir(args.out)
-    seeds = np.random.SeedSequence(args.seed).spawn(len(args.trackers))
-    trackers = [
-        make_tracker(name, rng=np.random.default_rng(s), n_particles=args.particles)
-        for name, s in zip(args.trackers, seeds)
-    ]
+    trackers = _make_trackers(args.trackers, args.seed, args.particles)
     # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
     n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
     recorders, rrd = _recording_observers(args, seq, n_frames)
@@ -347,6 +355,135 @@ def cmd_track(args) -> int:
     if rrd is not None and not interrupted:
         print(f"recording in {rrd}   open it with: rerun {rrd}")
     return EXIT_INTERRUPTED if interrupted else 0
+
+
+# --------------------------------------------------------------------------- #
+# bench and report
+# --------------------------------------------------------------------------- #
+BENCH_EPILOG = """\
+examples:
+  covviz bench ../shared/sequences --trackers csrt,kcf,mil --out runs/peers
+  covviz bench ../shared/sequences --trackers manifold,ipca,csrt,kcf,mil --seeds 3 --jobs 2 --out runs/bench
+  covviz bench ../shared/sequences/Car4 --trackers manifold --seeds 5 --max-frames 200 --out runs/car4
+  covviz report runs/bench --out docs/results.md     # rebuild the report elsewhere
+
+Results go to OUT/<sequence>/<tracker>_s<seed>.txt (boxes, OTB results format, 1-based)
+and .json (metrics, per-frame times, config, seed); deterministic trackers have no _s<seed>.
+Run the same command again to resume: finished results are kept and skipped. Adding
+trackers or seeds to a folder extends it. Seed s of a stochastic tracker reproduces
+'covviz track SEQ --tracker NAME --seed s'.
+"""
+
+REPORT_EPILOG = """\
+examples:
+  covviz report runs/bench                           # runs/bench/report.md + runs/bench/img/*.png
+  covviz report runs/bench --out docs/results.md     # docs/results.md + docs/img/*.png
+
+The report is rebuilt from the result files only; nothing is re-run. Figures go to
+img/ next to the markdown file and are linked with relative paths.
+"""
+
+
+def add_bench_parser(sub) -> argparse.ArgumentParser:
+    from covviz.trackers import TRACKERS
+
+    p = sub.add_parser(
+        "bench",
+        help="run trackers on every sequence under a folder; write results and a report",
+        description="Run each tracker on each sequence under ROOT (K seeds for the stochastic trackers, "
+        "once for the others), in J worker processes; write per-frame boxes and a JSON per run to --out "
+        "as each finishes (resumable), then the report (see 'covviz report').",
+        epilog=BENCH_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("root", type=Path, help="a sequence folder (OTB or VOT layout) or a folder of them")
+    p.add_argument(
+        "--trackers",
+        "--tracker",
+        dest="trackers",
+        default="manifold,ipca,csrt,kcf,mil",
+        metavar="NAME[,NAME…]",
+        help=f"trackers to run (default: manifold,ipca,csrt,kcf,mil); from {', '.join(TRACKERS)}",
+    )
+    p.add_argument(
+        "--seeds", type=positive_int, default=3, metavar="K", help="seeds per stochastic tracker (default 3)"
+    )
+    p.add_argument("--jobs", type=positive_int, default=1, metavar="J", help="worker processes (default 1)")
+    p.add_argument(
+        "--out", type=Path, default=Path("runs/bench"), help="results folder (default: runs/bench)"
+    )
+    p.add_argument(
+        "--max-frames", type=positive_int, metavar="N", help="run only the first N frames of each sequence"
+    )
+    p.add_argument(
+        "--particles", type=positive_int, help="particles of the stochastic trackers (default: their own)"
+    )
+    p.add_argument(
+        "--force", action="store_true", help="re-run every job, even into a folder from another run"
+    )
+    p.add_argument("--no-report", action="store_true", help="do not write the report at the end")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_bench)
+    return p
+
+
+def add_report_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "report",
+        help="rebuild the markdown report and figures of a bench from its result files",
+        description="Read the results of 'covviz bench' in DIR and write a markdown report: tables per "
+        "sequence and overall (success AUC, P@20, r_on_track, rms_on_track, fps; mean ± std over seeds), "
+        "the OTB success and precision plots, and the paper's bar charts (manifold against ipca).",
+        epilog=REPORT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("dir", type=Path, help="results folder written by 'covviz bench'")
+    p.add_argument(
+        "--out", type=Path, help="markdown file to write (default: DIR/report.md); figures go to its img/"
+    )
+    p.set_defaults(func=cmd_report)
+    return p
+
+
+def cmd_bench(args) -> int:
+    from covviz.bench import bench
+
+    t0 = time.perf_counter()
+    summary = bench(
+        args.root,
+        args.trackers.split(","),
+        args.out,
+        seeds=args.seeds,
+        jobs=args.jobs,
+        max_frames=args.max_frames,
+        particles=args.particles,
+        force=args.force,
+        progress=not args.no_progress,
+        report=not args.no_report,
+    )
+    n_failed = len(summary["failed"])
+    print(
+        f"bench: {summary['run']} runs done, {summary['skipped']} already done, {n_failed} failed "
+        f"({time.perf_counter() - t0:.1f} s); results in {args.out}/"
+    )
+    if summary["report"] is not None:
+        print(f"report: {summary['report']}")
+    if n_failed:
+        print(
+            f"covviz bench: {n_failed} runs failed "
+            f"(first: {summary['failed'][0][0]}: {summary['failed'][0][1]})",
+            file=sys.stderr,
+        )
+        return 1
+    return 0
+
+
+def cmd_report(args) -> int:
+    from covviz.report import write_report
+
+    path = write_report(args.dir, args.out)
+    print(f"report: {path}")
+    return 0
 
 
 # --------------------------------------------------------------------------- #
@@ -411,13 +548,15 @@ def add_mds_parser(sub) -> argparse.ArgumentParser:
 
 
 def cmd_mds(args) -> int:
-    # BLAS threads only contend with the tracker's own threads on 9x9 matrices:
-    # one BLAS thread halves the CPU time at the same speed.
-    from threadpoolctl import threadpool_limits
+    from covviz.threads import limit_threads
 
+    with limit_threads(1):
+        return _mds(args)
+
+
+def _mds(args) -> int:
     from covviz.viz.mds_figures import MDSFiguresConfig, random_walk_data, separation_data
 
-    threadpool_limits(1, user_api="blas")
     seq = open_sequence(args.sequence, box=args.box)
     if len(seq) < 2:
         raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
@@ -553,11 +692,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         return int(args.func(args) or 0)
-    except (UsageError, SequenceError) as exc:
-        print(f"covviz {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except ValueError as exc:
-        # Validation errors of configs, boxes and inputs are user errors too.
+    except InputError as exc:
+        # Validation of what the user gave (covviz.errors); any other exception, a ValueError
+        # raised by a tracker in the middle of a run included, is a bug: traceback, exit 1.
         print(f"covviz {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:

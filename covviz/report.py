@@ -31,9 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from covviz.bench import BenchError, _read_manifest
 from covviz.metrics import IOU_THRESHOLDS, ON_TRACK_GAMMA, PRECISION_AT, PRECISION_THRESHOLDS
-from covviz.results import load_result
+from covviz.results import ResultError, load_result, read_manifest
 
 __all__ = ["BASELINE", "OURS", "REPORT_NAME", "Run", "load_runs", "write_report"]
 
@@ -100,15 +99,15 @@ def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
 
     Raises
     ------
-    BenchError
+    ResultError
         If the folder does not exist or holds no result.
     covviz.results.ResultError
         If a result file is corrupt (the message names it).
     """
     d = Path(results_dir)
     if not d.is_dir():
-        raise BenchError(f"{d}: no such results folder")
-    manifest = _read_manifest(d)
+        raise ResultError(f"{d}: no such results folder")
+    manifest = read_manifest(d)
     if manifest is not None:
         seq_names = list(manifest.get("sequences", {}))
         trackers = set(manifest.get("trackers", []))
@@ -144,7 +143,7 @@ def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
                 or t_prec.shape != thr["precision"].shape
                 or not (np.allclose(t_iou, thr["iou"]) and np.allclose(t_prec, thr["precision"]))
             ):
-                raise BenchError(f"{js}: computed with other thresholds than the other results; re-run it")
+                raise ResultError(f"{js}: computed with other thresholds than the other results; re-run it")
         t = doc.get("thresholds") or {}
         thr["precision_at"] = float(t.get("precision_at", thr["precision_at"]))
         thr["on_track_gamma"] = float(t.get("on_track_gamma", thr["on_track_gamma"]))
@@ -164,7 +163,7 @@ def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
             )
         )
     if not runs:
-        raise BenchError(
+        raise ResultError(
             f"{d}: no results to report (expected <sequence>/<tracker>.json files from covviz bench)"
         )
     return manifest, runs, thr
@@ -266,12 +265,12 @@ def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path
     manifest, runs, thr = load_runs(d)
     md_path = Path(out) if out is not None else d / REPORT_NAME
     if md_path.suffix.lower() != ".md":
-        raise BenchError(f"--out must be a markdown file (.md), got {md_path}")
+        raise ResultError(f"--out must be a markdown file (.md), got {md_path}")
     img_dir = md_path.parent / IMG_DIR
     try:
         img_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise BenchError(f"cannot write to {img_dir}: {exc.strerror or exc}") from None
+        raise ResultError(f"cannot write to {img_dir}: {exc.strerror or exc}") from None
 
     preferred = list((manifest or {}).get("trackers", []))
     trackers = _order({r.tracker for r in runs}, preferred)

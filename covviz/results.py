@@ -8,6 +8,9 @@ For a run of tracker ``T`` with seed ``S`` on sequence ``Q`` the files are::
 Reports and plots read these files, so nothing is recomputed (run → results on
 disk → report). Files are written to a temporary name and renamed, so an
 interrupted run never leaves a half-written result.
+
+A folder of many results (``covviz bench``) also holds ``bench_manifest.json``,
+which names the run it belongs to (:func:`read_manifest`, :func:`write_manifest`).
 """
 
 from __future__ import annotations
@@ -20,17 +23,32 @@ from pathlib import Path
 import numpy as np
 
 from covviz import __version__
+from covviz.errors import InputError
 from covviz.metrics import evaluate
 from covviz.records import RunResult
 from covviz.sequences import read_boxes, write_boxes
 
-__all__ = ["FORMAT", "ResultError", "load_result", "result_paths", "save_result"]
+__all__ = [
+    "FORMAT",
+    "MANIFEST_FORMAT",
+    "MANIFEST_NAME",
+    "ResultError",
+    "load_result",
+    "read_manifest",
+    "result_paths",
+    "save_result",
+    "write_manifest",
+]
 
 #: Format tag written into every JSON; a folder from another tool or version is refused.
 FORMAT = "covviz-result/1"
+#: File name of the manifest inside a bench's results folder.
+MANIFEST_NAME = "bench_manifest.json"
+#: Format tag of the manifest; a folder with another tag is refused.
+MANIFEST_FORMAT = "covviz-bench/1"
 
 
-class ResultError(ValueError):
+class ResultError(InputError):
     """A results file is missing, corrupt or from another run; the message says which."""
 
 
@@ -101,3 +119,31 @@ def _json_default(o):
     if isinstance(o, (set, frozenset, tuple)):
         return list(o)
     return str(o)
+
+
+def read_manifest(out: str | Path) -> dict | None:
+    """The bench manifest of a results folder, or None if it has none.
+
+    Raises
+    ------
+    ResultError
+        If the manifest is corrupt or not a covviz bench manifest.
+    """
+    p = Path(out) / MANIFEST_NAME
+    if not p.exists():
+        return None
+    try:
+        m = json.loads(p.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError, OSError) as exc:
+        raise ResultError(
+            f"{p}: corrupt bench manifest ({exc.__class__.__name__}); delete it, or run "
+            "'covviz bench … --force' to re-run everything into this folder"
+        ) from None
+    if not isinstance(m, dict) or m.get("format") != MANIFEST_FORMAT:
+        raise ResultError(f"{p}: not a covviz bench manifest; choose a new --out")
+    return m
+
+
+def write_manifest(out: str | Path, manifest: dict) -> None:
+    """Write a results folder's manifest atomically."""
+    _atomic_write(Path(out) / MANIFEST_NAME, json.dumps(manifest, indent=1) + "\n")

@@ -31,6 +31,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from covviz.errors import InputError
+
 __all__ = [
     "Frame",
     "OTBSequence",
@@ -49,7 +51,7 @@ IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".ppm", ".
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".mpg", ".mpeg", ".m4v")
 
 
-class SequenceError(ValueError):
+class SequenceError(InputError):
     """A sequence cannot be read; the message says what to fix."""
 
 

@@ -6,6 +6,10 @@
   ``np.random.rand`` …): every stochastic function takes an ``rng``.
 * The core modules import without pulling ``rerun`` into ``sys.modules``
   (checked in a fresh interpreter).
+* No import cycles between the package's modules, counting imports inside
+  functions (a lazy import hides a cycle from the interpreter, not from a
+  reader).
+* ``covviz/viz`` calls no private member of a tracker.
 """
 
 from __future__ import annotations
@@ -147,17 +151,22 @@ s = np.random.SeedSequence(1).spawn(2)
     assert rerun_imports(ast.parse("import importlib\nimportlib.import_module('rerun')")) == [2]
 
 
+#: Modules of covviz/viz that compute or drive the viewer without logging: they stay free of rerun.
+RERUN_FREE_VIZ = ("covviz.viz", "covviz.viz.paths", "covviz.viz.mds_figures", "covviz.viz.snapshot")
+
+
 def core_modules() -> list[str]:
-    core = ["spd", "features", "descriptor", "dynamics", "particles", "records", "runner", "sequences",
-            "metrics", "results"]
-    mods = [f"covviz.{m}" for m in core if (PACKAGE / f"{m}.py").is_file()]
-    mods += [f"covviz.trackers.{p.stem}" for p in sorted((PACKAGE / "trackers").glob("*.py")) if p.stem != "__init__"]
-    return ["covviz", "covviz.trackers", *mods]
+    mods = []
+    for p in SOURCES:
+        name = module_name(p)
+        if not may_import_rerun(p) or name in RERUN_FREE_VIZ:
+            mods.append(name)
+    return sorted(set(mods) | {"covviz.cli"} | set(RERUN_FREE_VIZ))
 
 
 def test_core_modules_import_without_rerun():
     mods = core_modules()
-    assert "covviz.trackers.manifold" in mods and "covviz.spd" in mods
+    assert "covviz.trackers.manifold" in mods and "covviz.spd" in mods and "covviz.cli" in mods
     code = (
         "import importlib, sys\n"
         f"for m in {mods!r}:\n"
@@ -165,6 +174,147 @@ def test_core_modules_import_without_rerun():
         "    loaded = sorted(k for k in sys.modules if k == 'rerun' or k.startswith('rerun.'))\n"
         "    if loaded:\n"
         "        print(m, loaded[:3]); sys.exit(1)\n"
+        "import covviz.cli\n"
+        "covviz.cli.build_parser()  # every --help is built without the viewer's library\n"
+        "assert not any(k == 'rerun' or k.startswith('rerun.') for k in sys.modules)\n"
     )
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert p.returncode == 0, f"importing {p.stdout.strip()} pulled in rerun\n{p.stderr[-2000:]}"
+
+
+# --------------------------------------------------------------------------- #
+# import cycles
+# --------------------------------------------------------------------------- #
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+MODULES = {module_name(p): p for p in SOURCES}
+
+
+def imported_modules(name: str, tree: ast.Module, modules=None) -> set[str]:
+    """The package modules ``name`` imports anywhere in its source (functions included).
+
+    ``from a.b import c`` counts as importing ``a.b.c`` when that is a module,
+    else ``a.b``; ``importlib.import_module("a.b")`` with a literal counts too.
+    A module's own ancestor packages are left out (importing a submodule always
+    runs its package's ``__init__``; that is not a cycle of ours).
+    """
+    modules = MODULES if modules is None else modules
+    is_pkg = name in modules and modules[name].name == "__init__.py"
+    package = name if is_pkg else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            subs = [f"{mod}.{a.name}" for a in node.names if f"{mod}.{a.name}" in modules]
+            found.update(subs)
+            if len(subs) < len(node.names):
+                found.add(mod)
+        elif isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant):
+            f = node.func
+            fname = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
+            if fname == "import_module" and isinstance(node.args[0].value, str):
+                found.add(node.args[0].value)
+    out = set()
+    ancestors = {".".join(name.split(".")[:k]) for k in range(1, name.count(".") + 1)}
+    for m in found:
+        while m and m not in modules:
+            m = m.rpartition(".")[0]
+        if m and m != name and m not in ancestors:
+            out.add(m)
+    return out
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_cycles():
+    graph = {name: imported_modules(name, parse(p)) for name, p in MODULES.items()}
+    assert "covviz.bench" in graph["covviz.cli"]  # the graph sees lazy imports inside functions
+    cycles = import_cycles(graph)
+    detail = "; ".join(
+        " <-> ".join(c) + " (" + ", ".join(f"{a} -> {sorted(graph[a] & set(c))}" for a in c) + ")" for c in cycles
+    )
+    assert cycles == [], f"import cycles in covviz: {detail}"
+
+
+def test_cycle_checker_sees_lazy_imports_and_relative_ones():
+    mods = {"p": Path("p/__init__.py"), "p.a": Path("p/a.py"), "p.b": Path("p/b.py"), "p.c": Path("p/c.py")}
+    a = ast.parse("def f():\n    from p.b import thing\n")
+    b = ast.parse("from . import c\nimport importlib\nimportlib.import_module('p.a')\n")
+    c = ast.parse("from p import a\n")
+    graph = {
+        "p.a": imported_modules("p.a", a, mods),
+        "p.b": imported_modules("p.b", b, mods),
+        "p.c": imported_modules("p.c", c, mods),
+    }
+    assert graph == {"p.a": {"p.b"}, "p.b": {"p.c", "p.a"}, "p.c": {"p.a"}}
+    assert import_cycles(graph) == [["p.a", "p.b", "p.c"]]
+    assert import_cycles({"x": {"y"}, "y": set()}) == []
+
+
+# --------------------------------------------------------------------------- #
+# the recorder asks the frozen model, never the tracker's private parts
+# --------------------------------------------------------------------------- #
+def private_tracker_uses(tree: ast.Module) -> list[tuple[int, str]]:
+    """``<something>.tracker._x`` / ``tracker._x`` / ``tr._x`` attribute reads (private members of a tracker)."""
+    bad = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+            owner = _dotted(node.value) or ""
+            last = owner.rpartition(".")[2]
+            if last in ("tracker", "tr", "trk") or last.endswith("_tracker"):
+                bad.append((node.lineno, f"{owner}.{node.attr}"))
+    return sorted(bad)
+
+
+@pytest.mark.parametrize("path", [p for p in SOURCES if rel(p).startswith("covviz/viz/")], ids=rel)
+def test_viz_calls_no_private_member_of_a_tracker(path):
+    assert private_tracker_uses(parse(path)) == [], f"{rel(path)} reaches into a tracker's private state"
+
+
+def test_private_member_checker():
+    tree = ast.parse("s.tracker._observe(x)\ntr._step\nself._state\ntracker.observe()\n")
+    assert private_tracker_uses(tree) == [(1, "s.tracker._observe"), (2, "tr._step")]

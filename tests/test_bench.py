@@ -196,6 +196,32 @@ def test_bench_seed_replays_with_covviz_track(benched, root, tmp_path, monkeypat
     assert not np.array_equal(ours, other_seed)
 
 
+@pytest.mark.parametrize("order", ["csrt,manifold", "manifold,csrt"])
+def test_one_seed_rule_whatever_the_order_of_trackers(benched, root, tmp_path, monkeypatch, order):
+    """A tracker gets the stream of its seed whatever the other --trackers and their order (one rule)."""
+    monkeypatch.chdir(tmp_path)
+    argv = track_argv(str(root / "beta"), "--trackers", order, "--particles", str(PARTICLES), "--seed", "1")
+    assert main([*argv, "--out", str(tmp_path)]) == 0
+    for name, seed in (("manifold", 1), ("csrt", None)):
+        ours = (result_paths(tmp_path, "beta", name, 1)[0]).read_bytes()
+        theirs = (result_paths(benched, "beta", name, seed)[0]).read_bytes()
+        assert ours == theirs, name
+
+
+def test_tracker_rng_is_the_documented_rule():
+    from covviz.trackers import make_tracker, tracker_rng
+
+    a = tracker_rng(3).random(5)
+    b = np.random.default_rng(np.random.SeedSequence(3).spawn(1)[0]).random(5)
+    np.testing.assert_array_equal(a, b)
+    assert tracker_rng(None) is None
+    assert not np.array_equal(tracker_rng(4).random(5), a)
+    tr = make_tracker("manifold", seed=3, n_particles=PARTICLES)
+    np.testing.assert_array_equal(tr.rng.random(5), b)
+    with pytest.raises(ValueError, match="not both"):
+        make_tracker("manifold", seed=3, rng=0)
+
+
 def test_report_rebuilds_the_same_report_from_files(results, monkeypatch):
     before = (results / "report.md").read_text()
     (results / "report.md").unlink()
@@ -353,6 +379,13 @@ def test_corrupt_manifest(results, root, capsys):
     (results / "bench_manifest.json").write_text("{")
     assert bench_cli(root, results, "--trackers", "identity") == 2
     assert "corrupt bench manifest" in one_line_error(capsys)
+
+
+def test_report_on_a_corrupt_manifest_names_the_command_that_has_force(results, capsys):
+    (results / "bench_manifest.json").write_text("{")
+    assert main(["report", str(results)]) == 2
+    msg = one_line_error(capsys)
+    assert "corrupt bench manifest" in msg and "covviz bench" in msg
 
 
 def test_report_of_a_folder_without_results(tmp_path, capsys):

@@ -278,8 +278,39 @@ def test_error_inside_tracker_keeps_the_frames_done(tmp_path, monkeypatch):
                 raise RuntimeError("tracker blew up")
             return super().update(frame)
 
-    monkeypatch.setattr(trackers, "make_tracker", lambda name, rng=None, n_particles=None: Breaks())
+    monkeypatch.setattr(trackers, "make_tracker", lambda name, **kw: Breaks())
     with pytest.raises(RuntimeError, match="blew up"):
         cli.main(track("--out", str(tmp_path), "--max-frames", "20"))
     doc, boxes = load_result(tmp_path / "synthetic" / "identity_s0.json")
     assert doc["interrupted"] is True and doc["n_frames"] == 6 and len(boxes) == 6
+
+
+def test_value_error_inside_tracker_is_a_bug_not_bad_input(tmp_path, monkeypatch):
+    # Only validation errors (covviz.errors.InputError) are "bad input, exit 2": a ValueError raised
+    # by a tracker in the middle of a run escapes main() (traceback, exit 1), results kept.
+    from covviz import trackers
+    from covviz.results import load_result
+    from covviz.trackers.base import IdentityTracker
+
+    class Breaks(IdentityTracker):
+        def update(self, frame):
+            if self._index == 3:
+                raise ValueError("operands could not be broadcast together")
+            return super().update(frame)
+
+    monkeypatch.setattr(trackers, "make_tracker", lambda name, **kw: Breaks())
+    with pytest.raises(ValueError, match="broadcast"):
+        cli.main(track("--out", str(tmp_path), "--max-frames", "20"))
+    doc, _ = load_result(tmp_path / "synthetic" / "identity_s0.json")
+    assert doc["interrupted"] is True and doc["n_frames"] == 4
+
+
+def test_value_error_exit_code_through_the_console(tmp_path):
+    # The same as a user sees it: a bad config value is exit 2 with one line; a crash is exit 1.
+    p = subprocess.run(
+        [sys.executable, "-m", "covviz.cli", "track", "--out", str(tmp_path), "--particles", "1", "--no-save",
+         "--max-frames", "3", "--no-progress"],
+        capture_output=True, text=True, timeout=120, check=False,
+    )
+    assert p.returncode == 2, p.stderr
+    assert p.stderr.strip().count("\n") == 0 and "n_particles must be at least 2" in p.stderr

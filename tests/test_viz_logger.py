@@ -322,3 +322,12 @@ def test_weight_levels():
     w = np.array([1.0, 0.5, 1e-3, 1e-6])
     lv = weight_levels(w)
     assert lv[0] == 15 and lv[2] == 0 and lv[3] == 0 and 0 < lv[1] < 15
+
+
+def test_text_shown_in_the_viewer_has_glyphs_in_its_font():
+    """A glyph missing from the viewer's font crashes the viewer (rerun 0.41): keep to the safe set."""
+    from covviz.viz.description import DESCRIPTION, MDS_DESCRIPTION, viewer_safe
+
+    for text in (DESCRIPTION, MDS_DESCRIPTION):
+        assert viewer_safe(text) == text
+    assert viewer_safe("Car ∇ 4 ≥ ∝") == "Car ? 4 ≥ ?"

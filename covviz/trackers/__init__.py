@@ -8,9 +8,19 @@ from __future__ import annotations
 
 import importlib
 
+import numpy as np
+
 from covviz.trackers.base import IdentityTracker, Tracker
 
-__all__ = ["STOCHASTIC", "TRACKERS", "IdentityTracker", "Tracker", "make_tracker", "tracker_names"]
+__all__ = [
+    "STOCHASTIC",
+    "TRACKERS",
+    "IdentityTracker",
+    "Tracker",
+    "make_tracker",
+    "tracker_names",
+    "tracker_rng",
+]
 
 #: name -> "module:factory"; each factory takes (n_particles=None, rng=None).
 TRACKERS = {
@@ -47,8 +57,25 @@ def tracker_names(names) -> list[str]:
     return out
 
 
-def make_tracker(name: str, rng=None, n_particles: int | None = None):
+def tracker_rng(seed: int | None) -> np.random.Generator | None:
+    """The random stream of a tracker run with ``seed``: the one seed rule of covviz.
+
+    ``default_rng(SeedSequence(seed).spawn(1)[0])``, for every tracker and every
+    command: ``covviz track --seed s`` (whatever the other ``--trackers`` and
+    their order), ``covviz bench`` (seed ``s`` of ``--seeds``) and the library
+    give a tracker the same stream for the same seed, so any run can be
+    replayed by another command. ``None`` (deterministic trackers in a bench):
+    no generator.
+    """
+    if seed is None:
+        return None
+    return np.random.default_rng(np.random.SeedSequence(int(seed)).spawn(1)[0])
+
+
+def make_tracker(name: str, rng=None, n_particles: int | None = None, seed: int | None = None):
     """Build the tracker called ``name`` (see :data:`TRACKERS`).
+
+    Give ``seed`` (the rule of :func:`tracker_rng`) or an explicit ``rng``, not both.
 
     Raises
     ------
@@ -57,5 +84,9 @@ def make_tracker(name: str, rng=None, n_particles: int | None = None):
     """
     if name not in TRACKERS:
         raise ValueError(f"unknown tracker {name!r}; choose from {', '.join(TRACKERS)}")
+    if seed is not None:
+        if rng is not None:
+            raise ValueError("give seed or rng, not both")
+        rng = tracker_rng(seed)
     module, factory = TRACKERS[name].split(":")
     return getattr(importlib.import_module(module), factory)(n_particles=n_particles, rng=rng)

@@ -16,6 +16,7 @@ from typing import Protocol, runtime_checkable
 import cv2
 import numpy as np
 
+from covviz.errors import InputError
 from covviz.records import FrameRecord
 
 __all__ = ["IdentityTracker", "Tracker", "check_init_box", "to_gray"]
@@ -60,19 +61,19 @@ def check_init_box(box, frame_shape) -> np.ndarray:
 
     Raises
     ------
-    ValueError
-        If the box is not 4 finite numbers, has zero or negative size, or lies
-        entirely outside the frame.
+    covviz.errors.InputError
+        (a ``ValueError``) If the box is not 4 finite numbers, has zero or
+        negative size, or lies entirely outside the frame.
     """
     b = np.asarray(box, dtype=np.float64).reshape(-1)
     if b.shape != (4,) or not np.all(np.isfinite(b)):
-        raise ValueError(f"the initial box must be 4 finite numbers x,y,w,h; got {box!r}")
+        raise InputError(f"the initial box must be 4 finite numbers x,y,w,h; got {box!r}")
     x, y, w, h = b
     if w <= 0 or h <= 0:
-        raise ValueError(f"the initial box has zero or negative size (w={w:g}, h={h:g})")
+        raise InputError(f"the initial box has zero or negative size (w={w:g}, h={h:g})")
     H, W = frame_shape[:2]
     if x >= W or y >= H or x + w <= 0 or y + h <= 0:
-        raise ValueError(
+        raise InputError(
             f"the initial box {x:g},{y:g},{w:g},{h:g} lies outside the {W}x{H} frame"
         )
     return b

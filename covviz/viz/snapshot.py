@@ -23,6 +23,8 @@ import subprocess
 import time
 from pathlib import Path
 
+from covviz.errors import InputError
+
 __all__ = ["SnapshotError", "find_viewer", "parse_size", "snapshot", "vulkan_available"]
 
 #: Where Vulkan loaders look for installable client drivers (ICDs).
@@ -34,13 +36,13 @@ class SnapshotError(RuntimeError):
 
 
 def parse_size(text: str) -> tuple[int, int]:
-    """``"1600x900"`` -> ``(1600, 900)``."""
+    """``"1600x900"`` -> ``(1600, 900)``; :class:`~covviz.errors.InputError` otherwise."""
     try:
         w, h = (int(v) for v in str(text).lower().split("x"))
     except ValueError:
-        raise ValueError(f"--size must look like 1600x900, got {text!r}") from None
+        raise InputError(f"--size must look like 1600x900, got {text!r}") from None
     if not (200 <= w <= 8000 and 200 <= h <= 8000):
-        raise ValueError(f"--size must be between 200x200 and 8000x8000, got {text!r}")
+        raise InputError(f"--size must be between 200x200 and 8000x8000, got {text!r}")
     return w, h
 
 
