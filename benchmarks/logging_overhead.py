@@ -46,7 +46,8 @@ import psutil
 from covviz.runner import BackgroundObserver, run
 from covviz.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
-from covviz.viz.logger import LoggerConfig, RerunLogger, attach_sinks, new_recording
+from covviz.viz.logger import LoggerConfig, RerunLogger
+from covviz.viz.sinks import attach_sinks, new_recording
 
 TARGET_RATIO = 1.5
 TARGET_MB_PER_1000 = 30.0

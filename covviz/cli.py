@@ -216,7 +216,7 @@ def _check_viewer(args) -> None:
     """``--connect``: fail before the work starts if no viewer listens at the URL."""
     if not getattr(args, "connect", None):
         return
-    from covviz.viz.logger import DEFAULT_VIEWER_URL, viewer_reachable
+    from covviz.viz.sinks import DEFAULT_VIEWER_URL, viewer_reachable
 
     url = DEFAULT_VIEWER_URL if args.connect is True else str(args.connect)
     if not viewer_reachable(url):
@@ -241,14 +241,8 @@ def _recording_observers(args, seq, n_frames: int) -> tuple[list, Path | None]:
         _check_recording_path(save, n_frames, len(args.trackers))
     _check_viewer(args)
     from covviz.runner import BackgroundObserver
-    from covviz.viz.logger import (
-        BATCH_SECONDS,
-        BATCH_SECONDS_LIVE,
-        LoggerConfig,
-        RerunLogger,
-        attach_sinks,
-        new_recording,
-    )
+    from covviz.viz.logger import LoggerConfig, RerunLogger
+    from covviz.viz.sinks import BATCH_SECONDS, BATCH_SECONDS_LIVE, attach_sinks, new_recording
 
     config = LoggerConfig(mds_every=args.mds_every, likelihood_every=args.likelihood_every, seed=args.seed)
     stream = new_recording(batch_seconds=BATCH_SECONDS_LIVE if live else BATCH_SECONDS)
@@ -582,8 +576,8 @@ def _mds(args) -> int:
     walk = random_walk_data(seq, cfg, progress=progress)
     if save is not None or args.spawn or args.connect or args.serve_web:
         from covviz.viz.blueprint import mds_blueprint
-        from covviz.viz.logger import attach_sinks, new_recording
         from covviz.viz.mds_figures import log_figures
+        from covviz.viz.sinks import attach_sinks, new_recording
 
         stream = new_recording()
         attach_sinks(stream, save=save, spawn=args.spawn, connect=args.connect, serve_web=args.serve_web)

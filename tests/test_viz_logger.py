@@ -13,14 +13,9 @@ from covviz.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers.base import IdentityTracker
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz import paths as P
-from covviz.viz.logger import (
-    _LUT,
-    LoggerConfig,
-    RerunLogger,
-    attach_sinks,
-    new_recording,
-    weight_levels,
-)
+from covviz.viz.logger import LoggerConfig, RerunLogger
+from covviz.viz.palette import LUT, weight_levels
+from covviz.viz.sinks import attach_sinks, new_recording
 
 N_FRAMES = 12
 N_PARTICLES = 50
@@ -152,7 +147,7 @@ def test_particles_and_weights_equal_the_records(run):
         np.testing.assert_allclose(got, expected, atol=q / 2 + 1e-4)
         np.testing.assert_array_equal(
             np.array(colors[f], dtype=np.uint32),
-            _LUT[level[order]].astype(np.uint32) @ np.array([1 << 24, 1 << 16, 1 << 8, 1]),
+            LUT[level[order]].astype(np.uint32) @ np.array([1 << 24, 1 << 16, 1 << 8, 1]),
         )
         # The top-k: the highest weights, exactly, with their particle indices and corners.
         k = LoggerConfig().top_k

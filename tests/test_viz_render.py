@@ -13,7 +13,8 @@ import pytest
 from covviz.runner import run
 from covviz.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
-from covviz.viz.logger import LoggerConfig, RerunLogger, attach_sinks, new_recording
+from covviz.viz.logger import LoggerConfig, RerunLogger
+from covviz.viz.sinks import attach_sinks, new_recording
 from covviz.viz.snapshot import SnapshotError, find_viewer, snapshot, vulkan_available
 
 pytestmark = pytest.mark.viewer

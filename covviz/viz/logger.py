@@ -23,12 +23,9 @@ import json
 import logging
 import re
 import time
-import uuid
 from collections.abc import Sequence as Seq
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 
-import cv2
 import numpy as np
 import rerun as rr
 
@@ -38,8 +35,10 @@ from covviz.features import pose_corners
 from covviz.metrics import center_error, evaluate, iou
 from covviz.records import FrameRecord
 from covviz.spd import logm
+from covviz.threads import limit_threads
 from covviz.viz import paths as P
 from covviz.viz.blueprint import build_blueprint
+from covviz.viz.checks import checked, closed_strips, jpeg_bytes
 from covviz.viz.description import DESCRIPTION, viewer_safe
 from covviz.viz.diagnostics import (
     EVENT_DEFAULTS,
@@ -53,92 +52,32 @@ from covviz.viz.diagnostics import (
     template_spread,
     top_k,
 )
+from covviz.viz.palette import (
+    BACKGROUND_COLOR,
+    GT_COLOR,
+    INITIAL_COLOR,
+    LUT,
+    SERIES_COLORS,
+    TEMPLATE_COLOR,
+    TOP_COLOR,
+    likelihood_rgba,
+    tracker_color,
+    weight_levels,
+    weight_lut,
+)
+from covviz.viz.sinks import FLUSH_TIMEOUT
 
-__all__ = [
-    "APPLICATION_ID",
-    "BATCH_SECONDS",
-    "BATCH_SECONDS_LIVE",
-    "DEFAULT_VIEWER_URL",
-    "LoggerConfig",
-    "RerunLogger",
-    "attach_sinks",
-    "new_recording",
-    "viewer_reachable",
-    "weight_levels",
-]
+__all__ = ["LoggerConfig", "RerunLogger"]
 
 log = logging.getLogger("covviz.viz")
 
-#: Rerun application id of every covviz recording.
-APPLICATION_ID = "covviz"
-
-# Colours (RGB[A]). The cloud uses the paper's: green generated templates, red target, blue background.
-GT_COLOR = (235, 64, 52)
-TOP_COLOR = (40, 235, 90)
-TEMPLATE_COLOR = (150, 215, 150, 170)
-BACKGROUND_COLOR = (50, 120, 255)
-INITIAL_COLOR = (255, 255, 255)
-TRACKER_COLORS = {
-    "manifold": (255, 196, 0),
-    "manifold-paper": (190, 255, 60),
-    "ipca": (0, 210, 255),
-    "identity": (190, 190, 190),
-    "csrt": (255, 105, 180),
-    "kcf": (170, 120, 255),
-    "mil": (255, 140, 0),
-    "mosse": (0, 160, 160),
-    "medianflow": (240, 240, 240),
-    "tld": (150, 150, 255),
-}
-_FALLBACK_COLORS = [(255, 196, 0), (0, 210, 255), (255, 105, 180), (170, 120, 255), (255, 140, 0)]
-SERIES_COLORS = {
-    "ess": (255, 196, 0),
-    "max": (255, 90, 90),
-    "survivors": (120, 200, 255),
-    "resampled": (255, 255, 255),
-    "min": (40, 235, 90),
-    "mean": (255, 196, 0),
-    "spread": (200, 120, 255),
-    "drift": (255, 60, 60),
-    "lost": (255, 0, 0),
-    "recovered": (40, 235, 90),
-}
 #: The frame is drawn first (lowest draw order); overlays must come after it, or the depth test
 #: hides the frame behind their transparent pixels.
 FRAME_DRAW_ORDER = -20.0
-#: Levels of the weight colour ramp of the particles ...
-N_WEIGHT_LEVELS = 16
-#: ... on a log scale of w / w_max from this value (level 0 and below) to 1 (the top level).
-WEIGHT_FLOOR = 1e-3
 #: Radius of the centre of the heaviest particle, pixels (radius ∝ sqrt(w / w_max)).
 CENTRE_RADIUS = 3.0
 #: Centres smaller than this radius (pixels; w / w_max < 6 %) are sub-pixel dots and not logged.
 MIN_CENTRE_RADIUS = 0.75
-
-
-def weight_levels(w: np.ndarray) -> np.ndarray:
-    """Colour level 0..N_WEIGHT_LEVELS-1 of each weight, by ``log10(w / w_max)`` from WEIGHT_FLOOR to 0."""
-    wn = np.asarray(w, dtype=np.float64) / np.max(w)
-    with np.errstate(divide="ignore"):
-        t = 1.0 - np.log10(np.maximum(wn, 1e-300)) / np.log10(WEIGHT_FLOOR)
-    return np.clip(np.floor(t * (N_WEIGHT_LEVELS - 1) + 0.5), 0, N_WEIGHT_LEVELS - 1).astype(np.int64)
-
-
-def _weight_lut(n: int = N_WEIGHT_LEVELS, hi=(120, 255, 150)) -> np.ndarray:
-    """RGBA ramp from dark and transparent (negligible weight) to ``hi``, opaque (max weight).
-
-    Green for the first tracker with particles (the paper's colour for generated templates);
-    a second one ramps to its own colour, so the two clouds can be told apart.
-    """
-    t = np.linspace(0.0, 1.0, n)[:, None]
-    hi = np.asarray(hi, dtype=float)
-    lo = 0.3 * hi
-    rgb = lo + (hi - lo) * t
-    a = 20 + 150 * t  # even the heaviest outlines let the frame show through
-    return np.concatenate([rgb, a], axis=1).round().astype(np.uint8)
-
-
-_LUT = _weight_lut()
 
 
 @dataclass(frozen=True)
@@ -220,169 +159,6 @@ TENSOR_DIMS = ("matrix", "feature i", "feature j")
 TENSOR_SLICES = ("template", "observed", "difference")
 
 
-# --------------------------------------------------------------------------- #
-# recording streams and sinks
-# --------------------------------------------------------------------------- #
-#: Seconds of logging gathered into one chunk per entity. A tracker logs ~10-30 frames a second;
-#: Rerun's default (a few ms) would write one tiny chunk per entity and frame, whose per-chunk
-#: overhead triples the file size and defeats compression. Longer batches for a file alone,
-#: shorter when a live viewer is attached (it shows data one batch late).
-BATCH_SECONDS = 4.0
-BATCH_SECONDS_LIVE = 1.0
-#: Seconds to wait, at the end of a run, for the last batches to reach their sinks.
-FLUSH_TIMEOUT = 15.0
-#: The viewer URL of ``--connect`` without a value (Rerun's default).
-DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"
-
-
-def viewer_reachable(url: str | None = None, timeout: float = 1.0) -> bool:
-    """Whether something listens at a viewer URL's host and port (``rerun+http://host:port/proxy``)."""
-    import socket
-    from urllib.parse import urlsplit
-
-    parts = urlsplit(url or DEFAULT_VIEWER_URL)
-    host = parts.hostname or "127.0.0.1"
-    port = parts.port or (443 if parts.scheme.endswith("https") else 9876)
-    try:
-        with socket.create_connection((host, port), timeout=timeout):
-            return True
-    except OSError:
-        return False
-
-
-#: ... or this many bytes, whichever comes first.
-BATCH_BYTES = 8_000_000
-
-
-def new_recording(
-    recording_id: str | None = None,
-    application_id: str = APPLICATION_ID,
-    batch_seconds: float = BATCH_SECONDS,
-) -> rr.RecordingStream:
-    """A fresh :class:`rerun.RecordingStream` with a unique recording id (a UUID4 unless given).
-
-    Log calls are batched into chunks of ``batch_seconds`` (see :data:`BATCH_SECONDS`);
-    :meth:`RerunLogger.close` flushes the rest.
-    """
-    batcher = rr.ChunkBatcherConfig(flush_tick=float(batch_seconds), flush_num_bytes=BATCH_BYTES)
-    stream = rr.RecordingStream(
-        application_id, recording_id=recording_id or str(uuid.uuid4()), batcher_config=batcher
-    )
-    stream.set_log_time_enabled(
-        False
-    )  # our timelines are `frame` and `time`; wall-clock log time only costs bytes
-    return stream
-
-
-def attach_sinks(
-    stream: rr.RecordingStream,
-    save: str | Path | None = None,
-    spawn: bool = False,
-    connect: str | bool | None = None,
-    serve_web: bool = False,
-    port: int = 9876,
-) -> None:
-    """Send ``stream`` to a file and/or a viewer, as ``rr.script_setup`` does, but several at once.
-
-    Parameters
-    ----------
-    save : path, optional
-        Write an ``.rrd`` file.
-    spawn : bool
-        Start a viewer on ``port`` and stream to it.
-    connect : str or True, optional
-        Stream to a running viewer (``True``: the default URL
-        ``rerun+http://127.0.0.1:9876/proxy``).
-    serve_web : bool
-        Host a gRPC server and a web viewer connected to it.
-    """
-    sinks = []
-    if save is not None:
-        sinks.append(rr.FileSink(str(save)))
-    if spawn:
-        stream.spawn(port=port, connect=False)
-        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
-    if connect:
-        sinks.append(rr.GrpcSink(None if connect is True else str(connect)))
-    server = None
-    if serve_web:
-        server = rr.GrpcServerSink()
-        sinks.append(server)
-    if not sinks:
-        raise ValueError("nothing to send the recording to: give save, spawn, connect or serve_web")
-    stream.set_sinks(*sinks)
-    if server is not None:
-        rr.serve_web_viewer(open_browser=True, connect_to=server.uri)
-
-
-_THREADPOOLS = None
-
-
-def _blas_single_thread():
-    """Context manager limiting BLAS to one thread (a no-op without threadpoolctl)."""
-    global _THREADPOOLS
-    try:
-        if _THREADPOOLS is None:
-            from threadpoolctl import ThreadpoolController
-
-            _THREADPOOLS = ThreadpoolController()
-        return _THREADPOOLS.limit(limits=1, user_api="blas")
-    except Exception:  # noqa: BLE001 - threadpoolctl missing or unable to inspect the libraries: no limit
-        import contextlib
-
-        return contextlib.nullcontext()
-
-
-# --------------------------------------------------------------------------- #
-# array checks
-# --------------------------------------------------------------------------- #
-def _checked(x, shape: tuple, name: str, problems: list) -> np.ndarray | None:
-    """``x`` as float64 if it has ``shape`` (-1: any) and is finite; else None and a note in ``problems``."""
-    if x is None:
-        return None
-    a = np.asarray(x, dtype=np.float64)
-    ok = a.ndim == len(shape) and all(s == -1 or s == t for s, t in zip(shape, a.shape))
-    if not ok:
-        problems.append(f"{name} has shape {a.shape}, expected {shape}")
-        return None
-    if not np.all(np.isfinite(a)):
-        problems.append(f"{name} has NaN or inf")
-        return None
-    return a
-
-
-def _closed(corners: np.ndarray) -> np.ndarray:
-    """``(n, 4, 2)`` corners -> ``(n, 5, 2)`` closed strips."""
-    return np.concatenate([corners, corners[:, :1]], axis=1)
-
-
-def _jpeg(image: np.ndarray, quality: int) -> bytes:
-    img = np.asarray(image)
-    if img.dtype != np.uint8:
-        img = np.clip(img, 0, 255).astype(np.uint8)
-    if img.ndim == 3 and img.shape[2] == 3:
-        img = img[..., ::-1]  # OpenCV encodes BGR
-    elif img.ndim != 2:
-        raise ValueError(f"a frame must have shape (H, W) or (H, W, 3), got {img.shape}")
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(img), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-    if not ok:
-        raise ValueError("JPEG encoding of the frame failed")
-    return buf.tobytes()
-
-
-#: The likelihood map shows log-likelihoods from this many nats below the best position (transparent)
-#: to the best (bright): the likelihood itself (σ = 0.3) is a single bright pixel.
-LIKELIHOOD_RANGE_NATS = 20.0
-
-
-def _likelihood_rgba(log_lik: np.ndarray, range_nats: float = LIKELIHOOD_RANGE_NATS) -> np.ndarray:
-    """Relative log-likelihood (<= 0) -> RGBA: inferno colours, transparent far below the best."""
-    v = np.nan_to_num(np.clip(1.0 + np.asarray(log_lik) / range_nats, 0.0, 1.0))
-    rgb = cv2.applyColorMap((v * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)[..., ::-1]
-    a = (200 * np.sqrt(v)).astype(np.uint8)
-    return np.concatenate([rgb, a[..., None]], axis=2)
-
-
 def _has_templates(tracker) -> bool:
     """Whether a tracker carries covariance templates (the manifold tracker and its variants)."""
     return hasattr(getattr(tracker, "config", None), "template_sigma")
@@ -414,7 +190,7 @@ class _TrackerState:
         self.initial_template: np.ndarray | None = None
         self.rng = np.random.default_rng([cfg.seed, index])
         self.had_particles = False
-        self.lut = _LUT
+        self.lut = LUT
         self.series_colors = dict(SERIES_COLORS)
         self.clear_next: list[str] = []
         self.stages_seen: set[str] = set()
@@ -476,7 +252,7 @@ class RerunLogger:
             names.append(name)
         self._states = []
         for i, (name, tr) in enumerate(zip(names, trackers)):
-            color = TRACKER_COLORS.get(getattr(tr, "name", ""), _FALLBACK_COLORS[i % len(_FALLBACK_COLORS)])
+            color = tracker_color(getattr(tr, "name", ""), i)
             self._states.append(_TrackerState(name, tr, color, cfg, i))
         self._fps = getattr(sequence, "frame_rate", None) or None
         with_cloud = [s.name for s in self._states if _has_templates(s.tracker)]
@@ -484,7 +260,7 @@ class RerunLogger:
         # Several particle trackers: the second and later get their own colour ramp and series colours.
         for k, s in enumerate(st for st in self._states if st.name in with_particles):
             if k > 0:
-                s.lut = _weight_lut(hi=s.color)
+                s.lut = weight_lut(hi=s.color)
                 s.series_colors = {
                     key: tuple(int(0.4 * a + 0.6 * b) for a, b in zip(col[:3], s.color))
                     for key, col in SERIES_COLORS.items()
@@ -592,7 +368,7 @@ class RerunLogger:
         t0 = time.perf_counter()
         # The diagnostics do linear algebra on small matrices (9×9 stacks, a ~80×80 eigh), where
         # BLAS threads only add wake-up latency (10-100× on a loaded 2-core machine).
-        with _blas_single_thread():
+        with limit_threads(1, opencv=False):
             self._on_frame(frame, records)
         dt = time.perf_counter() - t0
         self.log_seconds += dt
@@ -613,13 +389,13 @@ class RerunLogger:
         rec.log(
             P.IMAGE,
             rr.EncodedImage(
-                contents=_jpeg(frame.image, cfg.jpeg_quality),
+                contents=jpeg_bytes(frame.image, cfg.jpeg_quality),
                 media_type="image/jpeg",
                 draw_order=FRAME_DRAW_ORDER,
             ),
         )
         problems: list[str] = []
-        gt = _checked(frame.gt, (4,), "ground truth", problems)
+        gt = checked(frame.gt, (4,), "ground truth", problems)
         if gt is not None:
             rec.log(P.GROUND_TRUTH, rr.Boxes2D(mins=[gt[:2]], sizes=[gt[2:]]))
         else:
@@ -644,16 +420,16 @@ class RerunLogger:
         s.clear_next = []
 
         # --- estimate -------------------------------------------------
-        box = _checked(record.box, (4,), "box", problems)
+        box = checked(record.box, (4,), "box", problems)
         if box is not None:
             rec.log(p.box, rr.Boxes2D(mins=[box[:2]], sizes=[box[2:]]))
-        corners = _checked(record.corners, (4, 2), "corners", problems)
+        corners = checked(record.corners, (4, 2), "corners", problems)
         if corners is not None:
-            rec.log(p.region, rr.LineStrips2D(_closed(corners[None]).astype(np.float32)))
+            rec.log(p.region, rr.LineStrips2D(closed_strips(corners[None]).astype(np.float32)))
 
         # --- particles ------------------------------------------------
-        pc = _checked(record.particle_corners, (-1, 4, 2), "particle_corners", problems)
-        lw = _checked(record.log_weights, (-1,), "log_weights", problems)
+        pc = checked(record.particle_corners, (-1, 4, 2), "particle_corners", problems)
+        lw = checked(record.log_weights, (-1,), "log_weights", problems)
         n = record.n_particles
         w = None
         if lw is not None:
@@ -667,28 +443,28 @@ class RerunLogger:
             wn = w / w.max()
             level = weight_levels(w)
             order = np.argsort(level, kind="stable")  # heavy particles drawn last (on top)
-            strips = (np.round(_closed(pc[order]) / q) * q).astype(np.float32)
+            strips = (np.round(closed_strips(pc[order]) / q) * q).astype(np.float32)
             rec.log(
                 p.particles, rr.LineStrips2D(strips, colors=s.lut[level[order]], radii=0.2, draw_order=20.0)
             )
             top = top_k(w, cfg.top_k)
             top_any = {"weight": w[top].astype(np.float64), "particle": top.astype(np.int64)}
-            dist = _checked(record.distances, (len(w),), "distances", problems)
+            dist = checked(record.distances, (len(w),), "distances", problems)
             if dist is not None:
                 top_any["distance"] = dist[top]
             # Trackers whose weights use more than d(C, C*) (the manifold tracker's quadrant
             # term) say so in extras: hovering a top particle shows what it was weighed by.
-            d_lik = _checked(record.extras.get("likelihood_distances"), (len(w),), "likelihood_distances", problems)
+            d_lik = checked(record.extras.get("likelihood_distances"), (len(w),), "likelihood_distances", problems)
             if d_lik is not None and d_lik is not dist:
                 top_any["likelihood_distance"] = d_lik[top]
-            d_quad = _checked(record.extras.get("quadrant_distances"), (len(w), -1), "quadrant_distances", problems)
+            d_quad = checked(record.extras.get("quadrant_distances"), (len(w), -1), "quadrant_distances", problems)
             if d_quad is not None:
                 for j in range(d_quad.shape[1]):
                     top_any[f"quadrant_distance_{j}"] = d_quad[top, j]
             rec.log(
                 p.top,
                 rr.LineStrips2D(
-                    _closed(pc[top]).astype(np.float32), colors=[TOP_COLOR], radii=0.6, draw_order=30.0
+                    closed_strips(pc[top]).astype(np.float32), colors=[TOP_COLOR], radii=0.6, draw_order=30.0
                 ),
                 rr.AnyValues(**top_any),
             )
@@ -729,7 +505,7 @@ class RerunLogger:
             rec.log(p.center_error, rr.Scalars(float(center_error(box[None], gt[None])[0])))
 
         # --- template cloud spread ---------------------------------------
-        templates = _checked(record.templates, (-1, -1, -1), "templates", problems)
+        templates = checked(record.templates, (-1, -1, -1), "templates", problems)
         if templates is not None and len(templates) and cfg.spread_every and i % cfg.spread_every == 0:
             try:
                 spread, s.spread_mean = template_spread(
@@ -741,8 +517,8 @@ class RerunLogger:
                 s.spread_mean = None
 
         # --- tensors ---------------------------------------------------------
-        est_t = _checked(record.estimate_template, (-1, -1), "estimate_template", problems)
-        est_d = _checked(record.estimate_descriptor, (-1, -1), "estimate_descriptor", problems)
+        est_t = checked(record.estimate_template, (-1, -1), "estimate_template", problems)
+        est_d = checked(record.estimate_descriptor, (-1, -1), "estimate_descriptor", problems)
         if i == 0 and est_t is not None:
             s.initial_template = est_t.copy()
         # One (3, d, d) tensor: template, observed, difference, in log space (where the template
@@ -782,7 +558,7 @@ class RerunLogger:
                 if key not in prepared_cache:
                     prepared_cache[key] = model.prepare(frame.image)
                 prepared = prepared_cache[key]
-                pose = _checked(record.pose, (4,), "pose", problems)
+                pose = checked(record.pose, (4,), "pose", problems)
                 if pose is None and box is not None:
                     pose = box_to_pose(box, model.base_wh)
                 if pose is not None:
@@ -828,7 +604,7 @@ class RerunLogger:
             # An opacity below 1 puts the image in the viewer's blended pass; at the default (1)
             # its transparent pixels would hide the frame (checked with rerun 0.41).
             rr.Image(
-                _likelihood_rgba(lm.log_likelihood),
+                likelihood_rgba(lm.log_likelihood),
                 color_model="RGBA",
                 draw_order=5.0,
                 opacity=0.9,
@@ -871,7 +647,7 @@ class RerunLogger:
                 s, p.cloud_zoom, s.mds_zoom, D[np.ix_(keep, keep)], cloud.kinds[keep], keys, i, labels=True
             )
         if len(bg_poses):
-            c = _closed(pose_corners(bg_poses, model.base_wh)).astype(np.float32)
+            c = closed_strips(pose_corners(bg_poses, model.base_wh)).astype(np.float32)
             rec.log(
                 p.background,
                 rr.LineStrips2D(c, colors=[BACKGROUND_COLOR + (60,)], radii=0.25, draw_order=15.0),
