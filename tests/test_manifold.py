@@ -486,3 +486,26 @@ def test_manifold_paper_is_the_tracker_without_quadrants(synth):
     for f in frames[1:4]:
         np.testing.assert_array_equal(tr.update(f), ref.update(f))
     assert tr.last_record.tracker == "manifold-paper"
+
+
+def test_config_round_trips_through_json():
+    import json
+
+    from covviz.dynamics import KinematicModel
+
+    cfg = ManifoldConfig(
+        n_particles=123,
+        quadrants=False,
+        kinematics=KinematicModel(pos_sigma=(0.05, 0.3)),
+        template_sigma_matrix=tuple(tuple(0.01 for _ in range(9)) for _ in range(9)),
+    )
+    d = json.loads(json.dumps(cfg.as_dict()))
+    assert ManifoldConfig.from_dict(d) == cfg
+    assert ManifoldConfig.from_dict({}) == ManifoldConfig()
+    assert ManifoldConfig.from_dict({"likelihood_sigma": 0.7}).likelihood_sigma == 0.7
+    with pytest.raises(ValueError, match="unknown ManifoldConfig field.*likelihood_sgima"):
+        ManifoldConfig.from_dict({"likelihood_sgima": 0.7})
+    with pytest.raises(ValueError, match="unknown kinematics field"):
+        ManifoldConfig.from_dict({"kinematics": {"pos_sigmaa": [0.1, 0.2]}})
+    with pytest.raises(ValueError, match="likelihood_sigma must be positive"):
+        ManifoldConfig.from_dict({"likelihood_sigma": -1})

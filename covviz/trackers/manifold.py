@@ -34,9 +34,10 @@ Reference: the paper in ``shared/paper.tex``, sections 2–3.
 
 from __future__ import annotations
 
+import json
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 
 import cv2
 import numpy as np
@@ -71,21 +72,10 @@ OBSERVE_CHUNK = 150
 
 @dataclass(frozen=True)
 class ManifoldConfig:
-    """Every parameter of :class:`ManifoldTracker`, with the defaults we tuned.
+    """Every parameter of :class:`ManifoldTracker`, with its default.
 
-    The defaults were tuned by mean success AUC (2 seeds) on the synthetic
-    sequence and five dev sequences (Car4's first 300 frames, Jogging-1,
-    Couple, Crossing, Bolt2), four rounds, 28 configurations; what moved the
-    score, in order: gain normalisation (+0.09), ``likelihood_sigma`` 0.3 → 0.5
-    (+0.07), no pre-smoothing (+0.04), a template walk of 0.005–0.01 rather than
-    0.02 (+0.03), resampling every frame (+0.01 to +0.03). Anything within
-    ±0.03 is seed noise. The quadrant term was then measured on all 14
-    benchmark sequences (3 seeds, the bench's seed streams): mean success AUC
-    0.399 without it, 0.437–0.446 with it (Riemannian or LogDet quadrant
-    distances, dropping the worst quadrant or not, weight 0.5 or 1); tracking
-    the quadrant references over time (geodesic steps of 2–5% a frame toward
-    the estimate) gave 0.390–0.439 and was left out: the reference drifts onto
-    occluders. Full results: ``docs/results.md``.
+    How the defaults were chosen (sweeps, seeds, what moved the score) is in
+    ``docs/tuning.md``.
 
     Attributes
     ----------
@@ -124,9 +114,8 @@ class ManifoldConfig:
         intensity: descriptors become invariant to illumination gain
         (see :func:`covviz.features.patch_features`). Not in the paper.
     quadrants : bool
-        Add the quadrant term to each particle's distance (module docstring;
-        mean success AUC on the 14 benchmark sequences, 3 seeds, 0.400 → 0.445,
-        at ~3.5 ms more per frame at 600 particles). Not in the paper.
+        Add the quadrant term to each particle's distance (see the module
+        docstring). Not in the paper; ``False`` gives the paper's likelihood.
     quadrant_weight : float
         Weight of the quadrant term in ``d²``.
     """
@@ -196,8 +185,36 @@ class ManifoldConfig:
             return np.asarray(self.template_sigma_matrix, dtype=float)
         return np.full((N_FEATURES, N_FEATURES), self.template_sigma)
 
-    def to_dict(self) -> dict:
-        return asdict(self)
+    def as_dict(self) -> dict:
+        """The fields as a JSON-serialisable dict (nested dataclasses as dicts, tuples as lists)."""
+        return json.loads(json.dumps(asdict(self), default=list))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ManifoldConfig:
+        """The config of :meth:`as_dict`'s output (or any subset of its fields; the rest default).
+
+        Raises
+        ------
+        ValueError
+            On an unknown field or a value the config refuses (the message names it).
+        """
+        if not isinstance(d, dict):
+            raise ValueError(f"a ManifoldConfig must be a JSON object of fields, got {type(d).__name__}")  # noqa: TRY004 - config errors are ValueError
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"unknown ManifoldConfig field(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}")
+        kw = dict(d)
+        if isinstance(kw.get("kinematics"), dict):
+            km = kw["kinematics"]
+            known = {f.name for f in fields(KinematicModel)}
+            bad = sorted(set(km) - known)
+            if bad:
+                raise ValueError(f"unknown kinematics field(s) {', '.join(bad)}; known: {', '.join(sorted(known))}")
+            kw["kinematics"] = KinematicModel(**{k: tuple(v) if isinstance(v, list) else v for k, v in km.items()})
+        if isinstance(kw.get("template_sigma_matrix"), list):
+            kw["template_sigma_matrix"] = tuple(tuple(r) for r in kw["template_sigma_matrix"])
+        return cls(**kw)
 
 
 def riemann_distance_to_templates(L: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -301,7 +318,7 @@ class ManifoldTracker:
         self._quadrant_logdet: np.ndarray | None = None
 
     def config_dict(self) -> dict:
-        return self.config.to_dict()
+        return self.config.as_dict()
 
     # ------------------------------------------------------------------ #
     def _prepare(self, frame: np.ndarray) -> np.ndarray:
