@@ -572,8 +572,9 @@ def _mds(args) -> int:
     if not args.no_png:
         _check_out_dir(args.png_dir)
     progress = not args.no_progress
-    sep = separation_data(seq, cfg, progress=progress)
+    # One observation model for both figures: the one the tracker of figure (b) builds at init.
     walk = random_walk_data(seq, cfg, progress=progress)
+    sep = separation_data(seq, cfg, progress=progress, model=walk.model)
     if save is not None or args.spawn or args.connect or args.serve_web:
         from covviz.viz.blueprint import mds_blueprint
         from covviz.viz.mds_figures import log_figures

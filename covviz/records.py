@@ -29,7 +29,7 @@ import numpy as np
 __all__ = ["STAGES", "FrameRecord", "RunResult"]
 
 #: Names of the timed stages of a manifold-tracker update, in execution order.
-STAGES = ("propagate", "warp", "features", "covariance", "distances", "weights", "resample")
+STAGES = ("propagate", "warp", "features", "covariance", "distances", "weights", "estimate", "resample")
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -77,6 +77,11 @@ class FrameRecord:
     extras : dict[str, Any]
         Tracker-specific arrays (for example the IPCA mean and basis, or an
         OpenCV tracker's failure flag).
+    model : object, optional
+        On the init record (index 0) of a covariance tracker: its frozen
+        :class:`~covviz.observation.ObservationModel`, which observers use to
+        compute what the tracker would observe at other poses (likelihood
+        maps, the drift diagnosis) without calling the tracker.
     """
 
     index: int
@@ -97,6 +102,7 @@ class FrameRecord:
     estimate_descriptor: np.ndarray | None = None
     timings: dict[str, float] = field(default_factory=dict)
     extras: dict[str, Any] = field(default_factory=dict)
+    model: Any = None
 
     @property
     def n_particles(self) -> int:

@@ -222,10 +222,24 @@ def run_many(
             )
             for j, tr in enumerate(trackers)
         ]
-        for ob in observers:
-            if hasattr(ob, "on_end"):
-                ob.on_end(results)
+        _end_all(observers, results)
     return results
+
+
+def _end_all(observers, results) -> None:
+    """``on_end`` of every observer, even when one raises (the first error is raised after all ran).
+
+    A recorder that failed must not keep the results collector from getting the results.
+    """
+    first: BaseException | None = None
+    for ob in observers:
+        if hasattr(ob, "on_end"):
+            try:
+                ob.on_end(results)
+            except BaseException as exc:  # noqa: BLE001 - re-raised below, after the others
+                first = first or exc
+    if first is not None:
+        raise first
 
 
 def run(tracker, sequence: Sequence, observers: Iterable = (), max_frames=None, progress=False, seed=None):

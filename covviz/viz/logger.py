@@ -31,8 +31,10 @@ import rerun as rr
 
 from covviz import __version__
 from covviz.embedding import AlignedMDS, distance_matrix
+from covviz.events import EVENT_DEFAULTS, EventConfig, EventDetector
 from covviz.features import pose_corners
 from covviz.metrics import center_error, evaluate, iou
+from covviz.observation import ObservationModel, box_to_pose
 from covviz.records import FrameRecord
 from covviz.spd import logm
 from covviz.threads import limit_threads
@@ -41,12 +43,7 @@ from covviz.viz.blueprint import build_blueprint
 from covviz.viz.checks import checked, closed_strips, jpeg_bytes
 from covviz.viz.description import DESCRIPTION, viewer_safe
 from covviz.viz.diagnostics import (
-    EVENT_DEFAULTS,
-    EventConfig,
-    EventDetector,
-    ObservationModel,
     background_poses,
-    box_to_pose,
     likelihood_map,
     template_cloud,
     template_spread,
@@ -179,9 +176,7 @@ class _TrackerState:
         self.paths = P.TrackerPaths(name)
         self.tracker = tracker
         self.color = color
-        self.model: ObservationModel | None = None
-        self.model_checked = False
-        self.sigma = float(getattr(getattr(tracker, "config", None), "likelihood_sigma", 0.3) or 0.3)
+        self.model: ObservationModel | None = None  # from the tracker's init record
         self.mds = AlignedMDS(cfg.mds_method)
         # SMACOF for the cloud alone: classical MDS would flatten it (see covviz.embedding.embed).
         self.mds_zoom = AlignedMDS("smacof", max_iter=30)
@@ -418,6 +413,8 @@ class RerunLogger:
         for path in s.clear_next:
             rec.log(path, rr.Clear(recursive=False))
         s.clear_next = []
+        if isinstance(record.model, ObservationModel):  # the init record: what the tracker sees, frozen
+            s.model = record.model
 
         # --- estimate -------------------------------------------------
         box = checked(record.box, (4,), "box", problems)
@@ -552,7 +549,7 @@ class RerunLogger:
         want_mds = cfg.mds_every and i % cfg.mds_every == 0 and est_t is not None
         want_lik = cfg.likelihood_period and i % cfg.likelihood_period == 0 and est_t is not None
         if want_mds or want_lik:
-            model = self._model(s)
+            model = s.model
             if model is not None:
                 key = id(s.tracker)
                 if key not in prepared_cache:
@@ -587,15 +584,9 @@ class RerunLogger:
         if problems:
             self._warn(s, problems)
 
-    def _model(self, s: _TrackerState) -> ObservationModel | None:
-        if not s.model_checked:
-            s.model_checked = True
-            s.model = ObservationModel.from_tracker(s.tracker)
-        return s.model
-
     def _log_likelihood(self, s: _TrackerState, model, prepared, pose, est_t) -> None:
         cfg, rec, p = self.config, self.stream, s.paths
-        lm = likelihood_map(model, prepared, pose, est_t, s.sigma, cfg.likelihood_grid, cfg.likelihood_reach)
+        lm = likelihood_map(model, prepared, pose, est_t, cfg.likelihood_grid, cfg.likelihood_reach)
         x0, y0, x1, y1 = lm.extent
         g = cfg.likelihood_grid
         rec.log(
