@@ -481,7 +481,9 @@ def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
     Parameters
     ----------
     source : str or Path, optional
-        ``None`` or ``"synthetic"``: the embedded synthetic default. A folder
+        ``None`` or ``"synthetic"``: the embedded synthetic default;
+        ``"synthetic:NAME"``: one of its failure scenarios
+        (:data:`covviz.scenarios.SCENARIOS`). A folder
         with ``img/``: OTB. A folder with ``groundtruth.txt``: VOT. A video file
         or an image glob: needs ``box``.
     box : array-like, shape (4,), optional
@@ -495,6 +497,10 @@ def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
     """
     if source is None or str(source) == "synthetic":
         seq: Sequence = SyntheticSequence()
+    elif str(source).startswith("synthetic:"):
+        from covviz.scenarios import open_scenario
+
+        seq = open_scenario(str(source).partition(":")[2])
     else:
         s = str(source)
         p = Path(s)
