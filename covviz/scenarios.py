@@ -177,7 +177,7 @@ class Occlusion(Scenario):
 
     edge_at_onset: float = 278.0
     speed: float = 4.0
-    stop_x: float = 180.0
+    stop_x: float = 140.0
     value: float = 128.0
     cause: str = field(default="occlusion", init=False)
 
