@@ -84,6 +84,8 @@ def tracker_list(text: str) -> list[str]:
 TRACK_EPILOG = """\
 examples:
   covviz track                                   # the embedded synthetic sequence
+  covviz track synthetic:occlusion               # a failure on purpose at a known frame; also distractor,
+                                                 #   illumination, fast-motion, scale, appearance
   covviz track ../shared/sequences/Car4 --seed 1 # an OTB folder
   covviz track clip.mp4 --box 120,80,40,60       # a video (or 'frames/*.png'): give the first box
   covviz track Car4 --trackers manifold,ipca     # several trackers side by side on the same frames

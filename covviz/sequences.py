@@ -350,19 +350,34 @@ class SyntheticSequence(Sequence):
     ``occl_*`` a grey bar covers part of the target. The same config gives the
     same frames, bit for bit. Ground truth is the unrotated box of the target's
     size at its centre (how OTB annotates), in 0-based pixels.
+
+    ``scenario`` (a :class:`covviz.scenarios.Scenario`; its own config unless
+    ``config`` is given) injects one cause of failure at a known frame: it may
+    change the path, the target's texture and what is drawn over the frame;
+    :attr:`scenario_truth` says what it injected, frame by frame.
     """
 
-    def __init__(self, config: SyntheticConfig | None = None):
+    def __init__(self, config: SyntheticConfig | None = None, scenario=None):
+        if config is None and scenario is not None:
+            config = scenario.config
         self.config = cfg = config or SyntheticConfig()
-        self.name = "synthetic"
+        self.scenario = scenario
+        self.name = "synthetic" if scenario is None else f"synthetic-{scenario.name}"
         self.frame_rate = cfg.frame_rate
         rng = np.random.default_rng(cfg.seed)
         self._background = _clutter(rng, cfg.height, cfg.width)
         self._texture = _target_texture(rng, cfg.target_h, cfg.target_w)
         self._poses = self._trajectory()
+        if scenario is not None:
+            self._poses = scenario.adjust_poses(self._poses, cfg)
         cx, cy, s = self._poses[:, 0], self._poses[:, 1], self._poses[:, 2]
         w, h = cfg.target_w * s, cfg.target_h * s
         self.groundtruth = np.stack([cx - w / 2, cy - h / 2, w, h], axis=1)
+
+    @property
+    def scenario_truth(self):
+        """The injected cause frame by frame (:class:`covviz.scenarios.ScenarioTruth`), or None."""
+        return None if self.scenario is None else self.scenario.truth(self)
 
     @property
     def poses(self) -> np.ndarray:
@@ -384,21 +399,28 @@ class SyntheticSequence(Sequence):
         theta = np.deg2rad(20.0) * np.sin(2 * np.pi * phase / 140.0)
         return np.stack([cx, cy, scale, theta], axis=1)
 
-    def _read(self, i: int) -> np.ndarray:
+    def paint_target(self, img: np.ndarray, pose, texture: np.ndarray | None = None) -> np.ndarray:
+        """``img`` (float32, ``(H, W)``) with the target texture drawn at ``pose`` ``(cx, cy, scale, theta)``."""
         cfg = self.config
-        cx, cy, s, th = self._poses[i]
-        img = self._background.copy()
+        texture = self._texture if texture is None else texture
+        cx, cy, s, th = pose
         # Target: rotate+scale the texture about its centre onto the frame.
-        th_, tw_ = self._texture.shape
+        th_, tw_ = texture.shape
         c, si = math.cos(th), math.sin(th)
         # maps texture coords (u, v) -> image: p = R(th) * s * ((u, v) - centre) + (cx, cy)
         A = np.array([[s * c, -s * si], [s * si, s * c]])
         centre = np.array([tw_ / 2.0, th_ / 2.0])
         t = np.array([cx, cy]) - A @ centre
         M = np.hstack([A, (t + A @ np.array([0.5, 0.5]) - 0.5)[:, None]])
-        tex = cv2.warpAffine(self._texture, M, (cfg.width, cfg.height), flags=cv2.INTER_LINEAR)
-        mask = cv2.warpAffine(np.ones_like(self._texture), M, (cfg.width, cfg.height), flags=cv2.INTER_LINEAR)
-        img = img * (1 - mask) + tex * mask
+        tex = cv2.warpAffine(texture, M, (cfg.width, cfg.height), flags=cv2.INTER_LINEAR)
+        mask = cv2.warpAffine(np.ones_like(texture), M, (cfg.width, cfg.height), flags=cv2.INTER_LINEAR)
+        return img * (1 - mask) + tex * mask
+
+    def _read(self, i: int) -> np.ndarray:
+        cfg = self.config
+        cx, cy, s = self._poses[i, :3]
+        texture = None if self.scenario is None else self.scenario.texture(self, i)
+        img = self.paint_target(self._background.copy(), self._poses[i], texture)
         # Partial occlusion: a vertical grey bar over the target's left part.
         if cfg.occl_start <= i < cfg.occl_end:
             bw = cfg.occl_fraction * cfg.target_w * s
@@ -409,6 +431,8 @@ class SyntheticSequence(Sequence):
         if cfg.illum_start <= i < cfg.illum_end:
             u = (i - cfg.illum_start) / (cfg.illum_end - cfg.illum_start)
             img = img * (1.0 - (1.0 - cfg.illum_gain) * math.sin(math.pi * u))
+        if self.scenario is not None:
+            img = self.scenario.paint(self, i, img)
         noise = np.random.default_rng([cfg.seed, i]).normal(0.0, cfg.noise_std, img.shape)
         gray = np.clip(img + noise, 0, 255).astype(np.uint8)
         # Mild colour tint so the frames are RGB like real ones.
@@ -459,7 +483,9 @@ def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
     Parameters
     ----------
     source : str or Path, optional
-        ``None`` or ``"synthetic"``: the embedded synthetic default. A folder
+        ``None`` or ``"synthetic"``: the embedded synthetic default;
+        ``"synthetic:NAME"``: one of its failure scenarios
+        (:data:`covviz.scenarios.SCENARIOS`). A folder
         with ``img/``: OTB. A folder with ``groundtruth.txt``: VOT. A video file
         or an image glob: needs ``box``.
     box : array-like, shape (4,), optional
@@ -473,6 +499,10 @@ def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
     """
     if source is None or str(source) == "synthetic":
         seq: Sequence = SyntheticSequence()
+    elif str(source).startswith("synthetic:"):
+        from covviz.scenarios import open_scenario
+
+        seq = open_scenario(str(source).partition(":")[2])
     else:
         s = str(source)
         p = Path(s)
