@@ -24,8 +24,8 @@ from collections.abc import Sequence as Seq
 
 import numpy as np
 
+from covviz.frames import Frame, Sequence
 from covviz.records import FrameRecord, RunResult
-from covviz.sequences import Frame, Sequence
 
 __all__ = ["BackgroundObserver", "Observer", "ResultCollector", "run", "run_many"]
 

@@ -21,7 +21,7 @@ from covviz.metrics import iou
 from covviz.scenarios import CALM, CAUSES, SCENARIOS, Scenario, get_scenario, open_scenario
 from covviz.sequences import SequenceError, SyntheticSequence, open_sequence
 from covviz.trackers.manifold import make
-from covviz.viz.diagnostics import LOST_IOU
+from covviz.events import LOST_IOU
 
 NAMES = list(SCENARIOS)
 #: Scenarios that only change the target (its path or texture): their frames
