@@ -25,12 +25,12 @@ from covviz.trackers.ipca import (
     box_to_state,
     reconstruction_errors,
     resample_indices,
+    sample_templates,
     sklm,
     state_corners,
     state_to_box,
     template_grid,
     update_model,
-    sample_templates,
 )
 
 CAR4 = Path(__file__).resolve().parents[2] / "shared" / "sequences" / "Car4"

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from covviz import cli
+from covviz.events import LOST_IOU
 from covviz.metrics import iou
 from covviz.scenarios import CALM, CAUSES, SCENARIOS, Scenario, get_scenario, open_scenario
 from covviz.sequences import SequenceError, SyntheticSequence, open_sequence
 from covviz.trackers.manifold import make
-from covviz.events import LOST_IOU
 
 NAMES = list(SCENARIOS)
 #: Scenarios that only change the target (its path or texture): their frames

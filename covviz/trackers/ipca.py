@@ -114,12 +114,12 @@ __all__ = [
     "diffuse",
     "reconstruction_errors",
     "resample_indices",
+    "sample_templates",
     "sklm",
     "state_corners",
     "state_to_box",
     "template_grid",
     "update_model",
-    "sample_templates",
 ]
 
 #: Side of the square template, pixels (the reference's ``tmplsize``).
