@@ -111,8 +111,25 @@ def test_every_frame_is_on_the_frame_timeline(run):
     assert set(boxes(t, P.TrackerPaths("identity").box)) == set(range(N_FRAMES))
     # Particles exist from frame 1 (frame 0 is the initialisation).
     assert set(t[P.TrackerPaths("manifold").particles]["LineStrips2D:strips"]) == set(range(1, N_FRAMES))
-    # The time timeline: seconds at the synthetic frame rate.
-    assert run["seq"].frame_rate
+
+
+
+def test_time_timeline_is_seconds_at_the_frame_rate(run):
+    """Every logged frame also sits on the `time` timeline, at frame / frame_rate seconds."""
+    import pyarrow as pa
+    from rerun.chunk import RrdReader
+
+    fps = run["seq"].frame_rate
+    pairs = {}
+    for ch in RrdReader(str(run["path"])).stream():
+        if ch.entity_path.lstrip("/") != P.IMAGE or ch.is_static:
+            continue
+        rb = ch.to_record_batch()
+        ns = rb.column(P.TIME_TIMELINE).cast(pa.int64()).to_pylist()  # durations, nanoseconds
+        pairs.update(zip(rb.column(P.FRAME_TIMELINE).to_pylist(), ns))
+    assert set(pairs) == set(range(N_FRAMES))
+    for f, t in pairs.items():
+        assert t == pytest.approx(f / fps * 1e9, abs=1.0), f
 
 
 def test_boxes_equal_the_records(run):

@@ -407,7 +407,8 @@ class RerunLogger:
                 self.stream.log(s.paths.events, rr.TextLog(viewer_safe(f"not logged: {msg}"), level="WARN"))
 
     def _log_tracker(self, s: _TrackerState, frame, record: FrameRecord, gt, prepared_cache) -> None:
-        rec, cfg, p = self.stream, self.config, s.paths
+        """Everything one tracker's record says about one frame, view by view."""
+        rec = self.stream
         i = int(frame.index)
         problems: list[str] = []
         for path in s.clear_next:
@@ -415,16 +416,31 @@ class RerunLogger:
         s.clear_next = []
         if isinstance(record.model, ObservationModel):  # the init record: what the tracker sees, frozen
             s.model = record.model
+        box = self._log_estimate(s, record, problems)
+        self._log_particles(s, record, problems)
+        o = self._log_quality(s, box, gt)
+        self._log_spread(s, record, i, problems)
+        est_t = self._log_tensors(s, record, i, problems)
+        self._log_timings(s, record)
+        self._log_diagnostics(s, frame, record, box, gt, est_t, prepared_cache, problems)
+        self._log_events(s, frame, record, o)
+        if problems:
+            self._warn(s, problems)
 
-        # --- estimate -------------------------------------------------
+    def _log_estimate(self, s: _TrackerState, record: FrameRecord, problems: list) -> np.ndarray | None:
+        """The estimated box and its (rotated) region; returns the box."""
+        rec, p = self.stream, s.paths
         box = checked(record.box, (4,), "box", problems)
         if box is not None:
             rec.log(p.box, rr.Boxes2D(mins=[box[:2]], sizes=[box[2:]]))
         corners = checked(record.corners, (4, 2), "corners", problems)
         if corners is not None:
             rec.log(p.region, rr.LineStrips2D(closed_strips(corners[None]).astype(np.float32)))
+        return box
 
-        # --- particles ------------------------------------------------
+    def _log_particles(self, s: _TrackerState, record: FrameRecord, problems: list) -> None:
+        """Particles coloured by weight, the top ones with their distances, and the weight series."""
+        rec, cfg, p = self.stream, self.config, s.paths
         pc = checked(record.particle_corners, (-1, 4, 2), "particle_corners", problems)
         lw = checked(record.log_weights, (-1,), "log_weights", problems)
         n = record.n_particles
@@ -494,14 +510,19 @@ class RerunLogger:
             for path in (p.particles, p.top, p.centres):
                 rec.log(path, rr.Clear(recursive=False))
 
-        # --- quality against ground truth ---------------------------------
+    def _log_quality(self, s: _TrackerState, box, gt) -> float | None:
+        """IoU and centre error against the ground truth; returns the IoU (None without ground truth)."""
+        rec, p = self.stream, s.paths
         o = None
         if gt is not None and box is not None:
             o = float(iou(box[None], gt[None])[0])
             rec.log(p.iou, rr.Scalars(o))
             rec.log(p.center_error, rr.Scalars(float(center_error(box[None], gt[None])[0])))
+        return o
 
-        # --- template cloud spread ---------------------------------------
+    def _log_spread(self, s: _TrackerState, record: FrameRecord, i: int, problems: list) -> None:
+        """The template cloud's spread (mean distance to its Karcher mean)."""
+        rec, cfg, p = self.stream, self.config, s.paths
         templates = checked(record.templates, (-1, -1, -1), "templates", problems)
         if templates is not None and len(templates) and cfg.spread_every and i % cfg.spread_every == 0:
             try:
@@ -513,7 +534,9 @@ class RerunLogger:
                 problems.append(f"template spread failed ({exc})")
                 s.spread_mean = None
 
-        # --- tensors ---------------------------------------------------------
+    def _log_tensors(self, s: _TrackerState, record: FrameRecord, i: int, problems: list) -> np.ndarray | None:
+        """The estimate's template, its observation and their difference; returns the template."""
+        rec, p = self.stream, s.paths
         est_t = checked(record.estimate_template, (-1, -1), "estimate_template", problems)
         est_d = checked(record.estimate_descriptor, (-1, -1), "estimate_descriptor", problems)
         if i == 0 and est_t is not None:
@@ -530,8 +553,11 @@ class RerunLogger:
             else:
                 stack = np.stack([est_t, obs_log, obs_log - est_t]).astype(np.float32)
                 rec.log(p.tensors, rr.Tensor(stack, dim_names=list(TENSOR_DIMS)))
+        return est_t
 
-        # --- timings -----------------------------------------------------
+    def _log_timings(self, s: _TrackerState, record: FrameRecord) -> None:
+        """Per-stage times of the update, milliseconds."""
+        rec, p = self.stream, s.paths
         for stage, sec in record.timings.items():
             if not np.isfinite(sec):
                 continue
@@ -545,7 +571,10 @@ class RerunLogger:
                 )
             rec.log(path, rr.Scalars(float(sec) * 1e3))
 
-        # --- costly diagnostics (only on their frames) ----------------------------
+    def _log_diagnostics(self, s: _TrackerState, frame, record, box, gt, est_t, prepared_cache, problems) -> None:
+        """The costly views (likelihood map, template cloud), only on their frames, through the model."""
+        cfg = self.config
+        i = int(frame.index)
         want_mds = cfg.mds_every and i % cfg.mds_every == 0 and est_t is not None
         want_lik = cfg.likelihood_period and i % cfg.likelihood_period == 0 and est_t is not None
         if want_mds or want_lik:
@@ -567,7 +596,11 @@ class RerunLogger:
                     except (ValueError, np.linalg.LinAlgError) as exc:
                         problems.append(f"diagnostics failed on frame {i} ({exc})")
 
-        # --- events ------------------------------------------------------
+    def _log_events(self, s: _TrackerState, frame, record: FrameRecord, o: float | None) -> None:
+        """Storms, losses, drift onsets and recoveries, each on the frame it belongs to."""
+        rec, p = self.stream, s.paths
+        i = int(frame.index)
+        n = record.n_particles
         ess_frac = float(record.ess) / n if n and np.isfinite(record.ess) else None
         for ev in s.events.update(i, o, ess_frac):
             if ev.frame != i:  # a drift is reported on the frame where it began
@@ -581,8 +614,6 @@ class RerunLogger:
                 rec.set_time(P.FRAME_TIMELINE, sequence=i)
                 if frame.time is not None:
                     rec.set_time(P.TIME_TIMELINE, duration=float(frame.time))
-        if problems:
-            self._warn(s, problems)
 
     def _log_likelihood(self, s: _TrackerState, model, prepared, pose, est_t) -> None:
         cfg, rec, p = self.config, self.stream, s.paths
