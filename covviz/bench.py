@@ -41,6 +41,7 @@ The manifest
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -257,7 +258,7 @@ def run_job(job: Job, out_dir: str, threads: int | None = None, jobs: int = 1) -
     tracker = make_tracker(job.tracker, seed=job.seed, n_particles=job.particles)
     failures = _FailureCounter()
     t0 = time.perf_counter()
-    with limit_threads(threads):
+    with limit_threads(threads), contextlib.closing(tracker) if hasattr(tracker, "close") else contextlib.nullcontext():
         res = run(tracker, seq, [failures], max_frames=job.max_frames, seed=job.seed)
     wall = time.perf_counter() - t0
     extra = {

@@ -15,6 +15,7 @@ says what to fix), 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import sys
 import time
@@ -291,8 +292,6 @@ def cmd_track(args) -> int:
 
 
 def _track(args) -> int:
-    from covviz.results import save_result
-    from covviz.runner import ResultCollector, run_many
     from covviz.trackers.base import check_init_box
 
     seq = open_sequence(args.sequence, box=args.box)
@@ -302,6 +301,17 @@ def _track(args) -> int:
     check_init_box(seq.init_box, first.image.shape)
     _check_out_dir(args.out)
     trackers = _make_trackers(args.trackers, args.seed, args.particles)
+    with contextlib.ExitStack() as stack:  # the trackers' threads end with the run
+        for tr in trackers:
+            if hasattr(tr, "close"):
+                stack.callback(tr.close)
+        return _run_tracking(args, seq, trackers)
+
+
+def _run_tracking(args, seq, trackers) -> int:
+    from covviz.results import save_result
+    from covviz.runner import ResultCollector, run_many
+
     # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
     n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
     recorders, rrd = _recording_observers(args, seq, n_frames)

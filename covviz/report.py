@@ -34,7 +34,7 @@ import numpy as np
 from covviz.metrics import IOU_THRESHOLDS, ON_TRACK_GAMMA, PRECISION_AT, PRECISION_THRESHOLDS
 from covviz.results import ResultError, load_result, read_manifest
 
-__all__ = ["BASELINE", "OURS", "REPORT_NAME", "Run", "load_runs", "write_report"]
+__all__ = ["BASELINE", "OURS", "REPORT_NAME", "Run", "Summary", "load_runs", "render", "summarize", "write_report"]
 
 log = logging.getLogger("covviz.report")
 
@@ -76,6 +76,16 @@ class Run:
     threads: int | None
     success: np.ndarray | None  # OTB success curve over the IoU thresholds
     precision: np.ndarray | None  # OTB precision curve over the pixel thresholds
+
+
+def _relative_root(root, md_path: Path) -> str:
+    """The manifest's root as the report names it: relative to the report's folder, never absolute."""
+    if not root:
+        return "?"
+    try:
+        return Path(os.path.relpath(Path(root).resolve(), md_path.parent.resolve())).as_posix()
+    except ValueError:  # another drive (Windows): the folder's name is all that can be said
+        return Path(root).name
 
 
 def _f(v) -> float:
@@ -248,30 +258,57 @@ def _table(rows: list[tuple[str, str, dict[str, Stat], Stat, Stat]]) -> list[str
 
 
 # --------------------------------------------------------------------------- #
-# the report
+# the report: aggregation (pure), rendering, writing
 # --------------------------------------------------------------------------- #
-def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path:
-    """Write the report of the bench in ``results_dir``; return the markdown path.
+@dataclass(frozen=True)
+class Summary:
+    """What a report says, aggregated from a results folder (no formatting, no files written).
 
-    Parameters
+    Attributes
     ----------
-    results_dir : path
-        A folder written by ``covviz bench``.
-    out : path, optional
-        The markdown file (default ``results_dir/report.md``); figures go to
-        ``img/`` beside it.
+    results_dir : Path
+    manifest : dict or None
+    runs : list of Run
+    thresholds : dict
+        As :func:`load_runs` returns them.
+    trackers : list of str
+        In the manifest's order, then the others by name.
+    sequences : list of str
+    seq_frames : dict
+        Frames per sequence.
+    stochastic : set of str
+        Trackers run with seeds.
+    n_seeds : int
+        Seeds in the manifest (0 without one).
+    by : dict
+        ``(sequence, tracker) -> [Run]``, sorted by seed.
+    per_sequence : dict
+        ``sequence -> rows`` of :func:`_table`.
+    overall : list
+        Rows of :func:`_table` over all sequences.
+    incomplete : list of str
+        Trackers that miss some runs.
     """
+
+    results_dir: Path
+    manifest: dict | None
+    runs: list
+    thresholds: dict
+    trackers: list
+    sequences: list
+    seq_frames: dict
+    stochastic: set
+    n_seeds: int
+    by: dict
+    per_sequence: dict
+    overall: list
+    incomplete: list
+
+
+def summarize(results_dir: str | Path) -> Summary:
+    """Aggregate the results of a bench folder: per sequence (over seeds) and overall (per seed, then over seeds)."""
     d = Path(results_dir)
     manifest, runs, thr = load_runs(d)
-    md_path = Path(out) if out is not None else d / REPORT_NAME
-    if md_path.suffix.lower() != ".md":
-        raise ResultError(f"--out must be a markdown file (.md), got {md_path}")
-    img_dir = md_path.parent / IMG_DIR
-    try:
-        img_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ResultError(f"cannot write to {img_dir}: {exc.strerror or exc}") from None
-
     preferred = list((manifest or {}).get("trackers", []))
     trackers = _order({r.tracker for r in runs}, preferred)
     if manifest is not None:
@@ -349,10 +386,34 @@ def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path
             )
         )
 
-    # ---- figures -------------------------------------------------------------
-    figs = _figures(img_dir, sequences, trackers, by, thr)
+    return Summary(
+        results_dir=d,
+        manifest=manifest,
+        runs=runs,
+        thresholds=thr,
+        trackers=trackers,
+        sequences=sequences,
+        seq_frames=seq_frames,
+        stochastic=stochastic,
+        n_seeds=n_seeds_manifest,
+        by=by,
+        per_sequence=per_seq,
+        overall=overall_rows,
+        incomplete=incomplete,
+    )
 
-    # ---- markdown ------------------------------------------------------------
+
+def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
+    """The markdown of a report written to ``md_path``: every path in it relative to that file.
+
+    No absolute path of the machine that made it appears: the results folder and the
+    sequences' root are given relative to the report (as the figures are).
+    """
+    md_path = Path(md_path)
+    d, manifest, runs, thr = summary.results_dir, summary.manifest, summary.runs, summary.thresholds
+    trackers, sequences, seq_frames = summary.trackers, summary.sequences, summary.seq_frames
+    stochastic, n_seeds_manifest, by = summary.stochastic, summary.n_seeds, summary.by
+    per_seq, overall_rows, incomplete = summary.per_sequence, summary.overall, summary.incomplete
     rel = lambda p: Path(os.path.relpath(p, md_path.parent)).as_posix()
     L: list[str] = ["# covviz benchmark", ""]
     n_files = len(runs)
@@ -363,7 +424,7 @@ def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path
         L += [
             f"Results in {where}: {n_files} runs of {len(trackers)} trackers "
             f"on {len(sequences)} sequences from "
-            f"`{manifest.get('root')}`"
+            f"`{_relative_root(manifest.get('root'), md_path)}`"
             + (f", first {manifest['max_frames']} frames of each" if manifest.get("max_frames") else "")
             + ".",
             (
@@ -485,8 +546,34 @@ def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path
         ),
         "",
     ]
+    return "\n".join(L).rstrip("\n") + "\n"
+
+
+def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path:
+    """Write the report of the bench in ``results_dir``; return the markdown path.
+
+    Parameters
+    ----------
+    results_dir : path
+        A folder written by ``covviz bench``.
+    out : path, optional
+        The markdown file (default ``results_dir/report.md``); figures go to
+        ``img/`` beside it.
+    """
+    d = Path(results_dir)
+    md_path = Path(out) if out is not None else d / REPORT_NAME
+    if md_path.suffix.lower() != ".md":
+        raise ResultError(f"--out must be a markdown file (.md), got {md_path}")
+    summary = summarize(d)
+    img_dir = md_path.parent / IMG_DIR
+    try:
+        img_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ResultError(f"cannot write to {img_dir}: {exc.strerror or exc}") from None
+    figs = _figures(img_dir, summary.sequences, summary.trackers, summary.by, summary.thresholds)
+    text = render(summary, md_path, figs)
     tmp = md_path.with_name(md_path.name + ".part")
-    tmp.write_text("\n".join(L).rstrip("\n") + "\n")
+    tmp.write_text(text)
     os.replace(tmp, md_path)
     return md_path
 

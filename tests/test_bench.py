@@ -247,6 +247,11 @@ def test_report_out_elsewhere_links_figures_relatively(results, tmp_path):
     assert len(links) == 3
     for link in links:
         assert link.startswith("img/") and (md.parent / link).is_file()
+    # No absolute path of this machine: the results and the sequences' root are named relative to it.
+    assert "/tmp" not in text and str(tmp_path) not in text and str(Path.home()) not in text
+    manifest = json.loads((results / "bench_manifest.json").read_text())
+    rel_root = re.search(r"sequences from `([^`]+)`", text).group(1)
+    assert (md.parent / rel_root).resolve() == Path(manifest["root"]).resolve()
 
 
 # --------------------------------------------------------------------------- #
