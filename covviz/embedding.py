@@ -50,6 +50,7 @@ __all__ = [
     "procrustes_align",
     "smacof_mds",
     "stress",
+    "stress1",
 ]
 
 
@@ -127,6 +128,17 @@ def stress(X: np.ndarray, D: np.ndarray) -> float:
     """Raw stress ``Σ_{i<j} (||x_i - x_j|| - D_ij)²`` of an embedding."""
     d = np.sqrt(((X[:, None, :] - X[None, :, :]) ** 2).sum(axis=-1))
     return 0.5 * float(((d - D) ** 2).sum())
+
+
+def stress1(X: np.ndarray, D: np.ndarray) -> float:
+    """Kruskal's stress-1 ``sqrt(Σ (||x_i - x_j|| - D_ij)² / Σ D_ij²)``: 0 perfect, 0.1 fair, 0.2 poor.
+
+    How much of the distances a 2-D picture misrepresents: a picture with a
+    high stress is not to be read as a map.
+    """
+    D = np.asarray(D, dtype=np.float64)
+    den = float((D * D).sum())
+    return float(np.sqrt(2.0 * stress(X, D) / den)) if den > 0 else 0.0
 
 
 def smacof_mds(

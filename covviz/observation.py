@@ -371,6 +371,46 @@ class ObservationModel:
         d_eff = None if d is None else self.likelihood_distance(d, q)
         return Observation(C, Q, d, q, d_eff)
 
+    def quadrant_descriptors(self, gray: np.ndarray, poses) -> tuple[np.ndarray, np.ndarray]:
+        """The whole region's and its four quadrants' descriptors at ``poses``, with or without the quadrant term.
+
+        Returns ``(C (n, 9, 9), Q (n, 4, 9, 9))``: what the tracker observes (``C``
+        equals :meth:`descriptors` when the model has quadrants) and the quadrant
+        descriptors a diagnosis compares over time (occlusion hides some
+        quadrants and not others).
+        """
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
+        P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
+        F = patch_features(P, gain_normalize=self.gain_normalize, quadrants=True)
+        return quadrant_covariances(F, self.eps)
+
+    def patches(self, gray: np.ndarray, poses) -> np.ndarray:
+        """The warped ``patch_size``² patches (without their border) at ``poses``, float32 ``(n, S, S)``."""
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
+        return warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())[:, 1:-1, 1:-1]
+
+    def template_scores(self, gray: np.ndarray, pose, templates) -> np.ndarray:
+        """``d_eff`` of many log-space templates at one pose, ``(m,)``: what each would be weighed by there.
+
+        One observation at ``pose``, then each template's distance to it (in
+        :data:`OBSERVE_CHUNK` batches) combined with that pose's quadrant term.
+        Equal to :meth:`likelihood_distances` with the pose repeated, without
+        observing it ``m`` times (the diagnosis asks this at the truth and the
+        estimate, for the whole template cloud).
+        """
+        pose = np.asarray(pose, dtype=np.float64).reshape(1, 4)
+        L = np.asarray(templates, dtype=np.float64).reshape(-1, N_FEATURES, N_FEATURES)
+        ob = self.observe(gray, pose)
+        C = ob.descriptors[0]
+        d = np.concatenate(
+            [distance_riemann_log(L[i : i + OBSERVE_CHUNK], C) for i in range(0, len(L), OBSERVE_CHUNK)]
+        ) if len(L) else np.zeros(0)
+        q = None
+        if self.quadrants:
+            q = distance_jbld(self.quadrant_reference, ob.quadrants, logdet_a=self.quadrant_logdet)
+            q = np.broadcast_to(q, (len(L), 4))
+        return self.likelihood_distance(d, q)
+
     def descriptors(self, gray: np.ndarray, poses, executor=None, threads: int = 1) -> np.ndarray:
         """Descriptors ``(n, 9, 9)`` at ``poses`` of a prepared frame."""
         return self.observe(gray, poses, executor=executor, threads=threads).descriptors

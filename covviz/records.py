@@ -17,6 +17,11 @@ Conventions
   clockwise on screen.
 * Corners are ``(n, 4, 2)``: top-left, top-right, bottom-right, bottom-left of
   the (possibly rotated) region, in pixels.
+* Frames have a 0-based *index* in code (``Frame.index``, ``FrameRecord.index``)
+  and a 1-based *number* wherever a user sees them — the recording's ``frame``
+  timeline, events and diagnoses, ``covviz snapshot --frame``, ``covviz mds
+  --frames``, results files — so frame 1 is ``img/0001.jpg``, as OTB numbers them
+  (:func:`frame_number`).
 """
 
 from __future__ import annotations
@@ -26,7 +31,12 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["STAGES", "FrameRecord", "RunResult"]
+__all__ = ["STAGES", "FrameRecord", "RunResult", "frame_number"]
+
+def frame_number(index: int) -> int:
+    """The 1-based frame number users see for a 0-based frame index."""
+    return int(index) + 1
+
 
 #: Names of the timed stages of a manifold-tracker update, in execution order.
 STAGES = ("propagate", "warp", "features", "covariance", "distances", "weights", "estimate", "resample")

@@ -319,3 +319,69 @@ def template_cloud(
     if not mats:
         return TemplateCloud(np.zeros((0, 9, 9)), np.zeros(0, dtype="<U10"), [], np.zeros(0, dtype=int))
     return TemplateCloud(np.concatenate(mats), np.array(kinds), keys, np.array(part, dtype=int))
+
+
+# --------------------------------------------------------------------------- #
+# likelihood along scale and rotation
+# --------------------------------------------------------------------------- #
+@dataclass(frozen=True)
+class LikelihoodSlices:
+    """The likelihood distance of one template along scale and rotation about one centre.
+
+    Attributes
+    ----------
+    scales : ndarray, shape (k,)
+        Scales tried (multiples of the centre pose's scale).
+    d_scale : ndarray, shape (k,)
+        ``d_eff`` at each scale (rotation as the pose's).
+    angles : ndarray, shape (m,)
+        Rotations tried, radians (added to the pose's).
+    d_angle : ndarray, shape (m,)
+        ``d_eff`` at each rotation (scale as the pose's).
+    """
+
+    scales: np.ndarray
+    d_scale: np.ndarray
+    angles: np.ndarray
+    d_angle: np.ndarray
+
+    @property
+    def best_scale(self) -> float:
+        return float(self.scales[int(np.argmin(self.d_scale))])
+
+    @property
+    def scale_flatness(self) -> float:
+        """Range of ``d_eff`` over the scales (small: the likelihood cannot tell the size)."""
+        return float(np.ptp(self.d_scale))
+
+
+#: Relative scales (log-spaced, x0.6 to x1.67) and rotations (±0.35 rad) of the slices.
+SLICE_SCALES = np.exp(np.linspace(np.log(0.6), np.log(1 / 0.6), 13))
+SLICE_ANGLES = np.linspace(-0.35, 0.35, 11)
+
+
+def likelihood_slices(
+    model: ObservationModel,
+    prepared,
+    pose: np.ndarray,
+    template_log: np.ndarray,
+    scales: np.ndarray = SLICE_SCALES,
+    angles: np.ndarray = SLICE_ANGLES,
+) -> LikelihoodSlices:
+    """``d_eff`` of ``template_log`` about ``pose``'s centre along scale and along rotation.
+
+    Two 1-D slices of the likelihood (through the tracker's own model): a
+    curve flat across scale says the likelihood cannot tell a box too large
+    from the right one; a minimum away from 1 says it prefers another size.
+    """
+    cx, cy, s, th = np.asarray(pose, dtype=np.float64).reshape(4)
+    sc = np.asarray(scales, dtype=np.float64)
+    an = np.asarray(angles, dtype=np.float64)
+    poses = np.concatenate(
+        [
+            np.stack([np.full(len(sc), cx), np.full(len(sc), cy), s * sc, np.full(len(sc), th)], axis=1),
+            np.stack([np.full(len(an), cx), np.full(len(an), cy), np.full(len(an), s), th + an], axis=1),
+        ]
+    )
+    d = model.likelihood_distances(prepared, poses, template_log)
+    return LikelihoodSlices(sc, d[: len(sc)], an, d[len(sc) :])
