@@ -54,6 +54,7 @@ from pathlib import Path
 
 from covviz import __version__
 from covviz.errors import InputError
+from covviz.records import frame_number
 from covviz.results import MANIFEST_FORMAT, MANIFEST_NAME, read_manifest, write_manifest
 from covviz.threads import limit_threads
 
@@ -217,14 +218,14 @@ def tracker_configs(trackers: Seq[str], particles: int | None) -> dict[str, dict
 # the worker
 # --------------------------------------------------------------------------- #
 class _FailureCounter:
-    """Observer: indices of frames whose record says ``extras["failed"]`` (OpenCV trackers)."""
+    """Observer: numbers (1-based) of the frames whose record says ``extras["failed"]`` (OpenCV trackers)."""
 
     def __init__(self) -> None:
         self.failed: list[int] = []
 
     def on_frame(self, frame, records) -> None:
         if records and records[0].extras.get("failed"):
-            self.failed.append(int(frame.index))
+            self.failed.append(frame_number(frame.index))
 
 
 def _init_worker() -> None:
@@ -241,6 +242,7 @@ def run_job(job: Job, out_dir: str, threads: int | None = None, jobs: int = 1) -
     report can plot them without the sequence), the thresholds they use, the
     frames on which the tracker reported a failure, and the bench settings.
     """
+    from covviz.diagnosis import Diagnoser
     from covviz.metrics import (
         IOU_THRESHOLDS,
         ON_TRACK_GAMMA,
@@ -250,16 +252,18 @@ def run_job(job: Job, out_dir: str, threads: int | None = None, jobs: int = 1) -
         success_curve,
     )
     from covviz.results import save_result
-    from covviz.runner import run
+    from covviz.runner import BackgroundObserver, run
     from covviz.sequences import open_sequence
     from covviz.trackers import make_tracker
 
     seq = open_sequence(job.path)
     tracker = make_tracker(job.tracker, seed=job.seed, n_particles=job.particles)
     failures = _FailureCounter()
+    diagnoser = Diagnoser()
     t0 = time.perf_counter()
     with limit_threads(threads), contextlib.closing(tracker) if hasattr(tracker, "close") else contextlib.nullcontext():
-        res = run(tracker, seq, [failures], max_frames=job.max_frames, seed=job.seed)
+        # The drift diagnosis on its own thread, overlapping the tracker (it never changes a box).
+        res = run(tracker, seq, [failures, BackgroundObserver(diagnoser)], max_frames=job.max_frames, seed=job.seed)
     wall = time.perf_counter() - t0
     extra = {
         "curves": {
@@ -270,6 +274,8 @@ def run_job(job: Job, out_dir: str, threads: int | None = None, jobs: int = 1) -
         },
         "thresholds": {"precision_at": PRECISION_AT, "on_track_gamma": ON_TRACK_GAMMA},
         "failed_frames": failures.failed,
+        "diagnosis": diagnoser.report(0),
+        "diagnosis_config": diagnoser.config.as_dict(),
         "bench": {"jobs": jobs, "threads": threads, "wall_seconds": round(wall, 3), "path": job.path},
     }
     doc = save_result(res, out_dir, extra)

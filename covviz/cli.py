@@ -6,7 +6,8 @@ Subcommands::
     covviz bench ROOT         every tracker on every sequence under ROOT, resumable, then a report
     covviz report DIR         rebuild a bench's markdown report and figures from its result files
     covviz mds [SEQUENCE]     the paper's manifold figures (MDS), as a recording and PNGs
-    covviz snapshot RRD       a PNG of a recording in the headless Rerun viewer, at a chosen frame
+    covviz snapshot RRD       a PNG of a recording in the headless Rerun viewer (a frame, or a sheet around an event)
+    covviz events RRD         the events and drift diagnoses of a recording
 
 Exit codes: 0 success, 1 unexpected error, 2 bad input (the one-line message
 says what to fix), 130 interrupted.
@@ -232,22 +233,44 @@ def default_recording_path(sequence_name: str, trackers: list[str], seed: int) -
     return Path("recordings") / f"{safe}-{'+'.join(trackers)}-s{seed}.rrd"
 
 
-def _recording_observers(args, seq, n_frames: int) -> tuple[list, Path | None]:
-    """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file."""
+def _print_diagnosis(found: dict | None) -> None:
+    """The terminal summary of the drift diagnosis: every loss with its cause, the suspects' count."""
+    if not found:
+        return
+    for d in found.get("diagnoses", []):
+        print(f"  {d['text']}")
+    sus = found.get("suspects", [])
+    if sus:
+        kinds = sorted({sp["kind"] for sp in sus})
+        print(f"  {len(sus)} suspect frame(s) without ground truth ({', '.join(kinds)}); 'covviz events' lists them")
+    labels = found.get("labels", {})
+    off = {k: v for k, v in labels.items() if k != "ok" and v}
+    if off:
+        print("  frames off track: " + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items()))
+
+
+def _recording_observers(args, seq, n_frames: int, diagnoser) -> tuple[list, Path | None]:
+    """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file.
+
+    Without a recording, the drift diagnosis runs on its own background thread.
+    """
     save = None if args.no_save else (args.save or default_recording_path(seq.name, args.trackers, args.seed))
     if args.no_save and args.save is not None:
         raise UsageError("--save and --no-save contradict each other; give one")
     live = bool(args.spawn or args.connect or args.serve_web)
+    from covviz.runner import BackgroundObserver
+
     if save is None and not live:
-        return [], None
+        return [BackgroundObserver(diagnoser)], None
     if save is not None:
         _check_recording_path(save, n_frames, len(args.trackers))
     _check_viewer(args)
-    from covviz.runner import BackgroundObserver
     from covviz.viz.logger import LoggerConfig, RerunLogger
     from covviz.viz.sinks import BATCH_SECONDS, BATCH_SECONDS_LIVE, attach_sinks, new_recording
 
-    config = LoggerConfig(mds_every=args.mds_every, likelihood_every=args.likelihood_every, seed=args.seed)
+    config = LoggerConfig(
+        mds_every=args.mds_every, likelihood_every=args.likelihood_every, seed=args.seed, diagnosis=diagnoser.config
+    )
     stream = new_recording(batch_seconds=BATCH_SECONDS_LIVE if live else BATCH_SECONDS)
     attach_sinks(stream, save=save, spawn=args.spawn, connect=args.connect, serve_web=args.serve_web)
     info = {
@@ -259,7 +282,7 @@ def _recording_observers(args, seq, n_frames: int) -> tuple[list, Path | None]:
         "particles": args.particles,
     }
     # The recorder logs on its own thread, overlapping the tracker (runner.BackgroundObserver).
-    return [BackgroundObserver(RerunLogger(stream, config, run_info=info))], save
+    return [BackgroundObserver(RerunLogger(stream, config, run_info=info, diagnoser=diagnoser))], save
 
 
 def _check_out_dir(out: Path) -> None:
@@ -309,12 +332,21 @@ def _track(args) -> int:
 
 
 def _run_tracking(args, seq, trackers) -> int:
+    from covviz.diagnosis import Diagnoser
     from covviz.results import save_result
     from covviz.runner import ResultCollector, run_many
 
     # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
     n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
-    recorders, rrd = _recording_observers(args, seq, n_frames)
+    diagnoser = Diagnoser()
+    recorders, rrd = _recording_observers(args, seq, n_frames, diagnoser)
+
+    def extra(j: int) -> dict:
+        """What the drift diagnosis found for tracker ``j``, for its results JSON."""
+        if j >= len(diagnoser.states):
+            return {}
+        return {"diagnosis": diagnoser.report(j), "diagnosis_config": diagnoser.config.as_dict()}
+
     collector = ResultCollector()
     observers = [*getattr(args, "observers", []), *recorders, collector]
     t0 = time.perf_counter()
@@ -333,8 +365,8 @@ def _run_tracking(args, seq, trackers) -> int:
         # holds those frames), then report the error.
         done = collector.results
         if done and len(done[0].boxes) > 1:
-            for res in done:
-                save_result(res, args.out)
+            for j, res in enumerate(done):
+                save_result(res, args.out, extra(j))
             log.warning("results of the %d frames before the error are in %s/%s/", len(done[0].boxes), args.out,
                         seq.name)
         raise
@@ -347,8 +379,8 @@ def _run_tracking(args, seq, trackers) -> int:
         if not results or not len(results[0].boxes):
             return EXIT_INTERRUPTED
     wall = time.perf_counter() - t0
-    for res in results:
-        doc = save_result(res, args.out)
+    for j, res in enumerate(results):
+        doc = save_result(res, args.out, extra(j))
         m = doc["metrics"]
         print(
             f"{res.sequence} · {res.tracker} (seed {res.seed}): {len(res.boxes)} frames, "
@@ -357,6 +389,7 @@ def _run_tracking(args, seq, trackers) -> int:
             f"r_on_track {m['r_on_track']:.3f}   rms_on_track {m['rms_on_track']:.3f}   "
             f"mean IoU {m['mean_iou']:.3f}   ({m['n_skipped']} frames without ground truth skipped)"
         )
+        _print_diagnosis(doc.get("diagnosis"))
     print(f"results in {args.out}/{seq.name}/  ({wall:.1f} s wall)")
     if rrd is not None and not interrupted:
         print(f"recording in {rrd}   open it with: rerun {rrd}")
@@ -620,22 +653,42 @@ SNAPSHOT_EPILOG = """\
 examples:
   covviz snapshot recordings/synthetic-manifold-s0.rrd --frame 120 --out shot.png
   covviz snapshot run.rrd --size 1920x1080            # the last frame
+  covviz events run.rrd                               # which events are there (their numbers K)
+  covviz snapshot run.rrd --event 3 --offsets -5,0,5 --out sheet.png   # before / at / after event 3
+  covviz snapshot recordings/Car4-mds.rrd --out mds.png                # an 'mds' recording (static)
 
+Frames are 1-based, as on the recording's timeline and in the events (frame 1 is the first image).
 Needs a Vulkan driver for the headless viewer: apt-get install -y mesa-vulkan-drivers libvulkan1
 """
+
+
+def offset_list(text: str) -> tuple[int, ...]:
+    try:
+        vals = tuple(int(v) for v in text.replace(" ", ",").split(",") if v)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--offsets must be frame offsets like -5,0,5; got {text!r}") from None
+    if not vals:
+        raise argparse.ArgumentTypeError(f"--offsets must be frame offsets like -5,0,5; got {text!r}")
+    return vals
 
 
 def add_snapshot_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "snapshot",
-        help="a PNG of a recording in the headless Rerun viewer",
+        help="a PNG of a recording in the headless Rerun viewer (a frame, or a sheet around an event)",
         description="Open a recording in the real Rerun viewer, headless (software rendering), go to a frame "
-        "and save a screenshot of the whole window with the recording's own layout.",
+        "and save a screenshot of the whole window with the recording's own layout. With --event, take one "
+        "screenshot per offset around that event (one viewer launch) and stack them into one sheet.",
         epilog=SNAPSHOT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("recording", type=Path, help="an .rrd file")
-    p.add_argument("--frame", type=nonneg_int, help="frame to show (default: the last)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--frame", type=positive_int, help="frame number to show, 1-based (default: the last)")
+    where.add_argument("--event", type=nonneg_int, metavar="K",
+                       help="event K of 'covviz events REC.rrd' (its frame, plus --offsets)")
+    p.add_argument("--offsets", type=offset_list, default=(-5, 0, 5), metavar="A,B,…",
+                   help="with --event: frames relative to the event's (default -5,0,5)")
     p.add_argument("--out", type=Path, default=Path("shot.png"), help="PNG to write (default shot.png)")
     p.add_argument("--size", default="1600x900", help="window size WxH in points (default 1600x900)")
     p.add_argument("--timeline", default="frame", help="timeline of --frame (default 'frame')")
@@ -645,17 +698,94 @@ def add_snapshot_parser(sub) -> argparse.ArgumentParser:
 
 
 def cmd_snapshot(args) -> int:
-    from covviz.viz.snapshot import SnapshotError, parse_size, snapshot
+    import tempfile
+
+    from covviz.viz.readback import last_frame, read_events
+    from covviz.viz.snapshot import SnapshotError, contact_sheet, parse_size, snapshot, snapshot_frames
 
     if not args.recording.is_file():
         raise UsageError(f"{args.recording}: no such recording")
     size = parse_size(args.size)
     try:
-        out = snapshot(args.recording, args.out, frame=args.frame, size=size, timeline=args.timeline,
-                       timeout=args.timeout)
+        if args.event is None:
+            out = snapshot(args.recording, args.out, frame=args.frame, size=size, timeline=args.timeline,
+                           timeout=args.timeout)
+            print(f"screenshot: {out}")
+            return 0
+        events = read_events(args.recording)
+        if not events:
+            raise UsageError(f"{args.recording}: the recording has no events (see 'covviz events')")
+        if args.event >= len(events):
+            raise UsageError(f"--event {args.event}: the recording has events 0..{len(events) - 1} "
+                             "(list them with 'covviz events')")
+        ev = events[args.event]
+        last = last_frame(args.recording) or ev["frame"]
+        frames = sorted({min(max(1, ev["frame"] + k), last) for k in args.offsets})
+        with tempfile.TemporaryDirectory() as tmp:
+            shots = [(Path(tmp) / f"f{f}.png", f) for f in frames]
+            snapshot_frames(args.recording, shots, size, args.timeline, args.timeout)
+            labels = [f"frame {f} ({f - ev['frame']:+d} from event {args.event}: {ev['kind']} "
+                      f"{ev['cause'].replace('_', ' ')}) - {ev['tracker']}" for f in frames]
+            out = contact_sheet([p for p, _ in shots], labels, args.out)
     except SnapshotError as exc:
         raise UsageError(str(exc)) from None
-    print(f"screenshot: {out}")
+    print(f"sheet: {out} (frames {', '.join(map(str, frames))} around event {args.event}: {ev['text'][:100]})")
+    return 0
+
+
+# --------------------------------------------------------------------------- #
+# events
+# --------------------------------------------------------------------------- #
+EVENTS_EPILOG = """\
+examples:
+  covviz events recordings/synthetic-manifold-s0.rrd
+  covviz events run.rrd --kind diagnosis            # only the diagnosed losses
+  covviz events run.rrd --json > events.json        # for scripts (evidence included)
+  covviz snapshot run.rrd --event 4 --offsets -5,0,5 --out sheet.png
+
+Kinds: drift, lost, recovered, storm, storm_end (from the ground truth and the weights),
+diagnosis (the cause of a loss, with its evidence), suspect (warnings without ground truth).
+Frames are 1-based, as on the recording's timeline.
+"""
+
+
+def add_events_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "events",
+        help="list the events and drift diagnoses of a recording",
+        description="Read the events of a tracking recording (loss, drift onset, recovery, resampling storms, "
+        "the diagnosed cause of every loss, label-free suspects) from the file, and print them with their "
+        "numbers K for 'covviz snapshot --event K'.",
+        epilog=EVENTS_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("recording", type=Path, help="an .rrd file written by 'covviz track'")
+    p.add_argument("--kind", action="append", metavar="KIND", help="only events of this kind (repeatable)")
+    p.add_argument("--tracker", help="only this tracker's events")
+    p.add_argument("--json", action="store_true", help="print JSON (one list, evidence included)")
+    p.set_defaults(func=cmd_events)
+    return p
+
+
+def cmd_events(args) -> int:
+    import json
+
+    from covviz.viz.readback import read_events
+
+    events = read_events(args.recording)
+    if args.kind:
+        events = [e for e in events if e["kind"] in args.kind]
+    if args.tracker:
+        events = [e for e in events if e["tracker"] == args.tracker]
+    if args.json:
+        print(json.dumps(events, indent=1))
+        return 0
+    if not events:
+        print(f"{args.recording}: no events")
+        return 0
+    for e in events:
+        cause = f" [{e['cause'].replace('_', ' ')}]" if e["cause"] else ""
+        print(f"{e['index']:>3}  frame {e['frame']:>5}  {e['tracker']:<14} {e['kind']:<9}{cause} {e['text']}")
     return 0
 
 
@@ -687,13 +817,28 @@ Run 'covviz COMMAND --help' for the options and examples of each command.""",
     add_report_parser(sub)
     add_mds_parser(sub)
     add_snapshot_parser(sub)
+    add_events_parser(sub)
     return parser
+
+
+def _glue_negative_values(argv: list[str]) -> list[str]:
+    """``--offsets -5,0,5`` as ``--offsets=-5,0,5``: argparse takes a value starting with '-' for an option."""
+    out: list[str] = []
+    it = iter(argv)
+    for a in it:
+        if a == "--offsets":
+            nxt = next(it, None)
+            out.append(a if nxt is None else f"{a}={nxt}")
+        else:
+            out.append(a)
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    args.argv = list(sys.argv[1:] if argv is None else argv)  # written into recordings
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(_glue_negative_values(argv))
+    args.argv = argv  # written into recordings
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s: %(message)s"
     )

@@ -71,7 +71,7 @@ CLOUD_TEMPLATES = 150
 #: The heaviest templates always among them.
 CLOUD_TOP = 20
 #: Frames of evidence kept per tracker (bounds memory; a diagnosis looks back at most this far).
-HISTORY = 120
+HISTORY = 300
 #: Particles farther than this (target sizes) from the estimate count towards a second mode.
 MODE_DISTANCE = 0.75
 
@@ -86,8 +86,8 @@ FAST_MOTION = 0.5
 FAST_OUTSIDE = 0.5
 #: scale: the estimate's size over the truth's (or its inverse) at least this at the loss ...
 SCALE_RATIO = 1.6
-#: ... with the centres at most this far apart, in sizes of the larger box.
-SCALE_CENTRE = 0.5
+#: ... with the smaller box at least this much inside the larger (the centre held, the size wrong).
+SCALE_CONTAIN = 0.7
 #: Changes of the target's look are measured against the baseline and compared with thresholds that are
 #: at least NOISE_FACTOR times the baseline's own spread (real targets vary from frame to frame).
 NOISE_FACTOR = 2.0
@@ -95,8 +95,16 @@ NOISE_FACTOR = 2.0
 LIGHT_RATIO = 2.0
 #: occlusion: on some frame, a quadrant's descriptor moved at least this far (sqrt(8 J)) from its baseline ...
 QUADRANT_JUMP = 3.0
-#: ... while another stayed within this of its own.
+#: ... while another stayed within this of its own, or changed at most 1/PARTIAL_RATIO as much (an occluder
+#: entering from one side); or (a static occluder hiding all of it) the region
+#: shows what stood at that place before the target came: a descriptor within TARGET_HOLD of the scene's
+#: there, and at most half as far from it as from the target's baseline.
 QUADRANT_HOLD = 2.0
+PARTIAL_RATIO = 2.0
+#: Frames kept to look up the scene at the target's place before it came (the most recent one where the
+#: target's box overlapped today's by at most SCENE_IOU).
+SCENE_FRAMES = 30
+SCENE_IOU = 0.1
 #: distractor: at the loss, the target still looks as before (d of the whole region, gain-normalised,
 #: from its baseline, at most this) ...
 TARGET_HOLD = 2.5
@@ -148,11 +156,14 @@ class DiagnosisConfig:
     fast_motion: float = FAST_MOTION
     fast_outside: float = FAST_OUTSIDE
     scale_ratio: float = SCALE_RATIO
-    scale_centre: float = SCALE_CENTRE
+    scale_contain: float = SCALE_CONTAIN
     noise_factor: float = NOISE_FACTOR
     light_ratio: float = LIGHT_RATIO
     quadrant_jump: float = QUADRANT_JUMP
     quadrant_hold: float = QUADRANT_HOLD
+    partial_ratio: float = PARTIAL_RATIO
+    scene_frames: int = SCENE_FRAMES
+    scene_iou: float = SCENE_IOU
     target_hold: float = TARGET_HOLD
     distractor_look: float = DISTRACTOR_LOOK
     distractor_margin: float = DISTRACTOR_MARGIN
@@ -225,6 +236,11 @@ class FrameEvidence:
     truth_box : ndarray, shape (4,)
     estimate_C : ndarray, shape (9, 9)
         Descriptor at the estimate's box (probe model): what the tracker followed.
+    scene_C : ndarray, shape (9, 9)
+        Descriptor at today's true box in the latest kept frame where the target was
+        elsewhere: the scene that stands at the target's place.
+    contain : float
+        Share of the smaller of the estimate's and the truth's boxes inside the larger.
     """
 
     frame: int
@@ -251,6 +267,8 @@ class FrameEvidence:
     truth_Q: np.ndarray | None = None
     truth_box: np.ndarray | None = None
     estimate_C: np.ndarray | None = None
+    scene_C: np.ndarray | None = None
+    contain: float = float("nan")
 
     def series(self) -> dict[str, float]:
         """The scalar evidence of this frame, by name (for logging and results)."""
@@ -287,6 +305,15 @@ def _box_quadrant_means(gray: np.ndarray, box) -> tuple[np.ndarray, float]:
     inner, ni = mean(x, y, x + w, y + h)
     ring = (big * nb - inner * ni) / (nb - ni) if nb > ni and np.isfinite(big) and np.isfinite(inner) else np.nan
     return q, float(ring)
+
+
+def _containment(a: np.ndarray, b: np.ndarray) -> float:
+    """Share of the smaller of two boxes ``x, y, w, h`` that lies inside the larger."""
+    x1, y1 = max(a[0], b[0]), max(a[1], b[1])
+    x2, y2 = min(a[0] + a[2], b[0] + b[2]), min(a[1] + a[3], b[1] + b[3])
+    inter = max(0.0, x2 - x1) * max(0.0, y2 - y1)
+    small = min(a[2] * a[3], b[2] * b[3])
+    return float(inter / small) if small > 0 else float("nan")
 
 
 def _boxes_of_poses(poses: np.ndarray, base_wh) -> np.ndarray:
@@ -379,6 +406,7 @@ class _LookChanges:
         self.q = np.zeros((0, 4))  # quadrants, sqrt(8 J)
         self.light = np.zeros((0, 4))  # log2 brightness ratio per quadrant
         self.est = np.zeros(0)  # the estimate's region against the target's baseline
+        self.scene = np.zeros(0)  # the target's region against the scene that stood there before
         self.noise_c = self.noise_q = 0.0
         self.evidence: dict[str, float] = {}
 
@@ -405,6 +433,8 @@ class _LookChanges:
             out.light = np.stack([np.log2(np.maximum(h.brightness, 1e-3) / np.maximum(b0, 1e-3)) for h in rows])
         out.est = np.array([float(distance_riemann(C0, h.estimate_C)) if h.estimate_C is not None else nan
                             for h in rows])
+        out.scene = np.array([float(distance_riemann(h.scene_C, h.truth_C)) if h.scene_C is not None else nan
+                              for h in rows])
         k = int(np.argmax(out.q.max(axis=1)))
         out.evidence = {
             "target_change_max": float(out.c.max()),
@@ -429,12 +459,23 @@ class _LookChanges:
     def last_est(self) -> float:
         return self.evidence["estimate_look_at_loss"]
 
-    def partial(self, jump: float, hold: float) -> int | None:
-        """The first frame where some quadrant moved at least ``jump`` while another stayed within ``hold``."""
+    def partial(self, jump: float, hold: float, ratio: float) -> int | None:
+        """The first frame where some quadrant moved at least ``jump`` while another stayed within ``hold``
+        or moved at most ``1/ratio`` as far."""
         for f, q in zip(self.frames, self.q):
-            if q.max() >= jump and q.min() <= hold:
+            if q.max() >= jump and (q.min() <= hold or q.max() >= ratio * q.min()):
                 self.evidence["partial_frame"] = float(f)
                 self.evidence["quadrant_change_max"], self.evidence["quadrant_change_min"] = float(q.max()), float(q.min())
+                return f
+        return None
+
+    def scene_in_front(self, change: float, near: float) -> int | None:
+        """The first frame where the region changed at least ``change`` from the target's look but shows
+        the scene that stood there before (within ``near``, and at most half as far as from the target)."""
+        for f, c, sc in zip(self.frames, self.c, self.scene):
+            if np.isfinite(sc) and c >= change and sc <= near and sc <= c / 2:
+                self.evidence["scene_frame"] = float(f)
+                self.evidence["scene_distance"] = float(sc)
                 return f
         return None
 
@@ -482,15 +523,15 @@ def diagnose(history: list[FrameEvidence], lost_at: int, drift_began: int, cfg: 
     if ev["truth_motion_max"] >= cfg.fast_motion and (not np.isfinite(outside) or outside >= cfg.fast_outside):
         held.append("fast_motion")
 
-    # ---- scale: centre held, size wrong ------------------------------------------------------
-    ratio = last.scale_ratio
-    ev["scale_ratio_at_loss"] = float(ratio)
-    larger = max(ratio, 1.0) if np.isfinite(ratio) else float("nan")
+    # ---- scale: centre held, size wrong (on some frame before the loss: the size went wrong first) ----
+    ev["scale_ratio_at_loss"] = float(last.scale_ratio)
     ev["centre_error_at_loss"] = float(last.centre_error)
-    centre_rel = last.centre_error / larger if np.isfinite(larger) else float("nan")
-    ev["centre_error_in_larger_box"] = float(centre_rel)
-    if np.isfinite(ratio) and max(ratio, 1 / ratio) >= cfg.scale_ratio and centre_rel <= cfg.scale_centre:
-        held.append("scale")
+    for h in win:
+        r = h.scale_ratio
+        if np.isfinite(r) and r > 0 and max(r, 1 / r) >= cfg.scale_ratio and h.contain >= cfg.scale_contain:
+            ev["scale_frame"], ev["scale_ratio"], ev["containment"] = float(h.frame), float(r), float(h.contain)
+            held.append("scale")
+            break
 
     # ---- the target's look against its baseline ---------------------------------------------
     look = _LookChanges.of(base, win)
@@ -514,11 +555,14 @@ def diagnose(history: list[FrameEvidence], lost_at: int, drift_began: int, cfg: 
     # occlusion: on some frame, some quadrants changed while another held
     jump = max(cfg.quadrant_jump, cfg.noise_factor * look.noise_q)
     hold = max(cfg.quadrant_hold, cfg.noise_factor * look.noise_q / 1.5)
-    if look.partial(jump, hold) is not None:
+    if look.partial(jump, hold, cfg.partial_ratio) is not None or look.scene_in_front(
+        max(cfg.appearance_change, cfg.noise_factor * look.noise_c), hold_c
+    ) is not None:
         held.append("occlusion")
     # appearance: on some frame, the whole target changed
     if look.whole(max(cfg.appearance_change, cfg.noise_factor * look.noise_c), cfg.appearance_quadrant) is not None:
         held.append("appearance")
+    ev.update(look.evidence)  # with the frames the partial / whole changes were found on
 
     # ---- impoverishment: the weights sat on a handful of particles --------------------------
     ess = _finite([h.ess_frac for h in win])
@@ -542,12 +586,18 @@ def _card(cause, also, lost_at, drift_began, ev, labels, last: FrameEvidence) ->
     why = {
         "fast_motion": f"the target jumped {_fmt(ev['truth_motion_max'])} target sizes in one frame, "
         f"beyond the particles (nearest {_fmt(ev['nearest_particle_at_jump'])} sizes away)",
-        "scale": f"the centre held ({_fmt(ev['centre_error_in_larger_box'])} box sizes off) but the size is wrong: "
-        f"estimate/truth = {_fmt(ev['scale_ratio_at_loss'])}",
+        "scale": f"the size went wrong while the centre held: at frame {int(ev.get('scale_frame', 0))} the estimate "
+        f"was {_fmt(ev.get('scale_ratio', np.nan))}x the truth's size with {_fmt(ev.get('containment', np.nan))} of the "
+        "smaller box inside the larger",
         "illumination": f"part of the target became {_fmt(2 ** ev['light_log2_max'], 1)}x darker or brighter "
         "than before the drift",
-        "occlusion": f"some quadrants of the target changed (up to d = {_fmt(ev['quadrant_change_max'])}) while "
-        f"another held (d = {_fmt(ev['quadrant_change_min'])})",
+        "occlusion": (
+            f"some quadrants of the target changed (up to d = {_fmt(ev['quadrant_change_max'])}) while another held "
+            f"(d = {_fmt(ev['quadrant_change_min'])})"
+            if "partial_frame" in ev
+            else f"the target's place shows the scene that stood there before (d = {_fmt(ev.get('scene_distance', np.nan))}"
+            f" from it, {_fmt(ev['target_change_max'])} from the target's look): something static hides it"
+        ),
         "distractor": f"the target still looks as before (d = {_fmt(ev['target_change_at_loss'])}) but the tracker "
         f"follows a look-alike (d = {_fmt(ev['estimate_look_at_loss'])} from the target's look) that the likelihood "
         f"scores as well (truth - estimate = {_fmt(ev['truth_minus_estimate_best_d'])})",
@@ -582,6 +632,8 @@ class _State:
         self.suspects: list[Suspect] = []
         self.latest: FrameEvidence | None = None
         self.prev_truth: np.ndarray | None = None
+        self.past: deque = deque(maxlen=cfg.scene_frames)  # (prepared frame, true box) of recent frames
+        self.label_counts: dict[str, int] = {k: 0 for k in LABELS}
         self.d_run: deque = deque(maxlen=cfg.suspect_window)
         self.scale_run: deque = deque(maxlen=cfg.suspect_window)
         self.low_ess = 0
@@ -618,6 +670,8 @@ class Diagnoser:
             if gray is None:
                 gray = to_gray(frame.image)
             ev = self._evidence(s, frame, rec, gray)
+            if ev.label:
+                s.label_counts[ev.label] += 1
             s.latest = ev
             s.history.append(ev)
             out = {"evidence": ev, "events": [], "diagnoses": [], "suspects": []}
@@ -670,6 +724,7 @@ class Diagnoser:
         kw["iou"] = float(iou(box[None], gt[None])[0])
         kw["centre_error"] = float(np.hypot(*(c_est - c_gt)) / size)
         kw["scale_ratio"] = float(np.sqrt(max(box[2] * box[3], 1e-12) / (gt[2] * gt[3])))
+        kw["contain"] = _containment(box, gt)
         kw["truth_box"] = gt
         if s.prev_truth is not None:
             kw["truth_motion"] = float(np.hypot(*(c_gt - s.prev_truth)) / size)
@@ -683,9 +738,14 @@ class Diagnoser:
         probe = s.probe
         if probe is not None:
             pg = probe.prepare(frame.image)
-            poses = np.stack([box_to_pose(gt, probe.base_wh), box_to_pose(box, probe.base_wh)])
+            truth_pose = box_to_pose(gt, probe.base_wh)
+            poses = np.stack([truth_pose, box_to_pose(box, probe.base_wh)])
             C, Q = probe.quadrant_descriptors(pg, poses)
             kw["truth_C"], kw["truth_Q"], kw["estimate_C"] = C[0], Q[0], C[1]
+            past = next((g for g, b in reversed(s.past) if iou(b[None], gt[None])[0] <= cfg.scene_iou), None)
+            if past is not None:
+                kw["scene_C"] = probe.descriptors(past, truth_pose[None])[0]
+            s.past.append((pg, gt))
         model = s.model
         if model is not None and rec.estimate_template is not None and rec.pose is not None:
             mg = pg if model is probe else model.prepare(frame.image)
@@ -762,7 +822,7 @@ class Diagnoser:
             "events": [asdict(e) for e in s.events],
             "diagnoses": [d.as_dict() for d in s.diagnoses],
             "suspects": [sp.as_dict() for sp in s.suspects],
-            "labels": {k: sum(1 for h in s.history if h.label == k) for k in LABELS},
+            "labels": dict(s.label_counts),
         }
 
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +76,23 @@ class Run:
     threads: int | None
     success: np.ndarray | None  # OTB success curve over the IoU thresholds
     precision: np.ndarray | None  # OTB precision curve over the pixel thresholds
+    causes: tuple = ()  # the diagnosed cause of each loss (covviz.diagnosis)
+    losses: tuple = ()  # (drift began, lost at) of each loss, 1-based frames
+    suspects: tuple = ()  # frames of the label-free suspects
+
+
+def _diagnosis_fields(found: dict | None) -> dict:
+    """The causes, losses and suspects of a result's drift diagnosis (none for results without one)."""
+    if not found:
+        return {}
+    events = found.get("events", [])
+    drifts = [e["frame"] for e in events if e.get("kind") == "drift"]
+    lost = [e["frame"] for e in events if e.get("kind") == "lost"]
+    return {
+        "causes": tuple(d.get("cause", "unknown") for d in found.get("diagnoses", [])),
+        "losses": tuple(zip(drifts, lost)),
+        "suspects": tuple(int(sp["frame"]) for sp in found.get("suspects", [])),
+    }
 
 
 def _relative_root(root, md_path: Path) -> str:
@@ -170,6 +187,7 @@ def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
                 threads=(doc.get("bench") or {}).get("threads"),
                 success=succ,
                 precision=prec,
+                **_diagnosis_fields(doc.get("diagnosis")),
             )
         )
     if not runs:
@@ -288,6 +306,12 @@ class Summary:
         Rows of :func:`_table` over all sequences.
     incomplete : list of str
         Trackers that miss some runs.
+    causes : dict
+        ``tracker -> {cause: losses}`` over every sequence and seed.
+    causes_by_sequence : dict
+        ``(sequence, tracker) -> {cause: losses}`` over seeds.
+    suspects : dict
+        ``tracker -> covviz.diagnosis.score_suspects`` totals over every run.
     """
 
     results_dir: Path
@@ -303,6 +327,9 @@ class Summary:
     per_sequence: dict
     overall: list
     incomplete: list
+    causes: dict = field(default_factory=dict)
+    causes_by_sequence: dict = field(default_factory=dict)
+    suspects: dict = field(default_factory=dict)
 
 
 def summarize(results_dir: str | Path) -> Summary:
@@ -386,6 +413,22 @@ def summarize(results_dir: str | Path) -> Summary:
             )
         )
 
+    # ---- failures: causes of the losses, and the label-free suspects against them ----------
+    from covviz.diagnosis import score_suspects
+
+    causes: dict = {}
+    by_seq: dict = {}
+    suspects: dict = {}
+    for r in runs:
+        for c in r.causes:
+            causes.setdefault(r.tracker, {}).setdefault(c, 0)
+            causes[r.tracker][c] += 1
+            by_seq.setdefault((r.sequence, r.tracker), {}).setdefault(c, 0)
+            by_seq[(r.sequence, r.tracker)][c] += 1
+        sc = score_suspects([{"frame": f} for f in r.suspects], list(r.losses))
+        tot = suspects.setdefault(r.tracker, dict.fromkeys(sc, 0))
+        for k, v in sc.items():
+            tot[k] += v
     return Summary(
         results_dir=d,
         manifest=manifest,
@@ -400,7 +443,71 @@ def summarize(results_dir: str | Path) -> Summary:
         per_sequence=per_seq,
         overall=overall_rows,
         incomplete=incomplete,
+        causes=causes,
+        causes_by_sequence=by_seq,
+        suspects=suspects,
     )
+
+
+def _failure_section(summary: Summary) -> list[str]:
+    """Losses by diagnosed cause (overall and per sequence) and how far the label-free suspects can be trusted."""
+    from covviz.diagnosis import CAUSES, MATCH_AFTER, MATCH_BEFORE
+
+    if not summary.suspects:
+        return []
+    trackers = [t for t in summary.trackers if t in summary.suspects]
+    cols = [c for c in (*CAUSES, "unknown") if any(c in summary.causes.get(t, {}) for t in trackers)]
+    L = [
+        "## Failures and their causes",
+        "",
+        (
+            "Every loss of track (IoU below 0.1) was diagnosed from the frames between the start of its drift and "
+            "the loss (`covviz.diagnosis`; the rules and their thresholds are in the results' `diagnosis_config`). "
+            "Counts over all sequences and seeds; *unknown*: no rule of the vocabulary held."
+        ),
+        "",
+    ]
+    if cols:
+        L += ["| tracker | losses | " + " | ".join(c.replace("_", " ") for c in cols) + " |",
+              "|---|---:|" + "---:|" * len(cols)]
+        for t in trackers:
+            c = summary.causes.get(t, {})
+            L.append(f"| `{t}` | {sum(c.values())} | " + " | ".join(str(c.get(k, 0) or "·") for k in cols) + " |")
+        L += ["", "Per sequence (losses by cause, all seeds):", "",
+              "| sequence | " + " | ".join(f"`{t}`" for t in trackers) + " |", "|---|" + "---|" * len(trackers)]
+        for seq in summary.sequences:
+            cells = []
+            for t in trackers:
+                c = summary.causes_by_sequence.get((seq, t), {})
+                cells.append(", ".join(f"{k.replace('_', ' ')} {v}" for k, v in sorted(c.items())) or "—")
+            L.append(f"| {seq} | " + " | ".join(cells) + " |")
+    else:
+        L.append("No tracker lost its target.")
+    L += [
+        "",
+        "### Suspects without ground truth: how far to trust them",
+        "",
+        (
+            "A user's own video has no ground truth; the diagnosis then raises *suspects* from the filter's own "
+            "numbers (weights collapsing, the best distance leaving its running range, a second mode of the weights, "
+            f"the scale running away). Scored here against the losses: a suspect is right when it falls between "
+            f"{MATCH_BEFORE} frames before a drift began and {MATCH_AFTER} frames after the loss (precision), and a "
+            "loss is found when at least one suspect falls in that window (recall)."
+        ),
+        "",
+        "| tracker | suspects | precision | losses | recall |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for t in trackers:
+        sc = summary.suspects[t]
+        prec = sc["true_positives"] / sc["suspects"] if sc["suspects"] else float("nan")
+        rec = sc["losses_found"] / sc["losses"] if sc["losses"] else float("nan")
+        L.append(f"| `{t}` | {sc['suspects']} | {_fmt_pct(prec)} | {sc['losses']} | {_fmt_pct(rec)} |")
+    return [*L, ""]
+
+
+def _fmt_pct(v: float) -> str:
+    return "—" if not np.isfinite(v) else f"{100 * v:.0f}%"
 
 
 def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
@@ -496,6 +603,7 @@ def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
     else:
         L += [f"Needs `{OURS}` or `{BASELINE}` results; this bench has neither.", ""]
 
+    L += _failure_section(summary)
     L += ["## Success AUC per sequence", ""]
     L += [
         "| sequence | frames | " + " | ".join(f"`{t}`" for t in trackers) + " |",

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from covviz import cli
+from covviz.diagnosis import Diagnoser
 from covviz.events import LOST_IOU
 from covviz.metrics import iou
 from covviz.scenarios import CALM, CAUSES, SCENARIOS, Scenario, get_scenario, open_scenario
@@ -253,27 +254,43 @@ def test_track_runs_a_scenario(tmp_path, capsys):
 # --------------------------------------------------------------------------- #
 # the default tracker fails there, and not before (seeds 0-2, 600 particles)
 # --------------------------------------------------------------------------- #
-def loss_frame(seq, sc: Scenario, seed: int) -> tuple[int | None, np.ndarray]:
-    """First frame with IoU < LOST_IOU (None if none up to onset + window), and the IoU so far."""
+def loss_frame(seq, sc: Scenario, seed: int):
+    """First frame with IoU < LOST_IOU (None if none up to onset + window), the IoU so far, and the diagnoser.
+
+    The drift diagnosis (covviz.diagnosis.Diagnoser) watches the run as ``covviz track`` runs it.
+    """
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])  # as `covviz track --seed`
     tracker = make(rng=rng)
-    tracker.init(seq.frame(0).image, seq.init_box)
+    dg = Diagnoser()
+    dg.on_start(seq, [tracker])
+    frame = seq.frame(0)
+    tracker.init(frame.image, seq.init_box)
+    dg.on_frame(frame, [tracker.last_record])
     ious = [1.0]
     for i in range(1, sc.onset + sc.window + 1):
-        box = tracker.update(seq.frame(i).image)
+        frame = seq.frame(i)
+        box = tracker.update(frame.image)
+        dg.on_frame(frame, [tracker.last_record])
         ious.append(float(iou(box[None], seq.groundtruth[i][None])[0]))
         if ious[-1] < LOST_IOU:
-            return i, np.array(ious)
-    return None, np.array(ious)
+            tracker.close()
+            return i, np.array(ious), dg
+    tracker.close()
+    return None, np.array(ious), dg
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", NAMES)
 def test_default_tracker_loses_the_target_within_the_window_after_the_onset(name, sequences):
+    """... and the drift diagnosis names the injected cause for that first loss (issue 10, item 6)."""
     seq, sc = sequences[name], SCENARIOS[name]
     for seed in (0, 1, 2):
-        lost, ious = loss_frame(seq, sc, seed)
+        lost, ious, dg = loss_frame(seq, sc, seed)
         assert lost is not None, (
             f"seed {seed}: no loss by frame {sc.onset + sc.window}; IoU {ious[sc.onset :]}"
         )
         assert lost >= sc.onset, f"seed {seed}: lost at frame {lost}, before the onset {sc.onset}"
+        diagnoses = dg.states[0].diagnoses
+        assert len(diagnoses) == 1 and diagnoses[0].lost_at == lost + 1  # 1-based frame numbers
+        d = diagnoses[0]
+        assert d.cause == sc.cause, f"seed {seed}: diagnosed {d.cause} (also {d.also}), injected {sc.cause}: {d.text}"

@@ -87,8 +87,8 @@ def test_entity_paths(run):
         m.iou,
         m.center_error,
         f"{m.heatmap}/image",
-        f"{m.heatmap}/labels",
-        m.zoom,
+        f"{m.heatmap}/axes",
+        f"{m.zoom}/patches",
         f"{m.slices}/estimate",
         f"{m.slices}/truth",
         m.why_series("best_truth"),
@@ -227,7 +227,7 @@ def test_heatmaps_equal_the_records(run):
     for i in (0, 5):
         rec = run["col"].records[i][0]
         expected = heatmap_image(rec.estimate_template, logm(rec.estimate_descriptor))
-        assert expected.shape == (9, 3 * 9 + 2 * 3, 3)
+        assert expected.shape == (9, 3 * 9 + 2 * 2, 3)
         np.testing.assert_array_equal(np.asarray(logged[i + 1], dtype=np.uint8).ravel(), expected.ravel())
     # The colour scales are fixed: a value maps to the same colour on every frame.
     from covviz.viz.why import LOG_RANGE
@@ -235,8 +235,8 @@ def test_heatmaps_equal_the_records(run):
     lo = heatmap_image(np.full((9, 9), LOG_RANGE[0]), np.full((9, 9), LOG_RANGE[0]))
     hi = heatmap_image(np.full((9, 9), LOG_RANGE[1]), np.full((9, 9), LOG_RANGE[1]))
     assert not np.array_equal(lo[:, :9], hi[:, :9])
-    np.testing.assert_array_equal(lo[:, :9], lo[:, 12:21])  # template and observed share one scale
-    np.testing.assert_array_equal(lo[:, 24:], hi[:, 24:])  # no difference: the same neutral colour
+    np.testing.assert_array_equal(lo[:, :9], lo[:, 11:20])  # template and observed share one scale
+    np.testing.assert_array_equal(lo[:, 22:], hi[:, 22:])  # no difference: the same neutral colour
 
 
 def test_costly_diagnostics_only_on_their_frames(run):

@@ -18,7 +18,6 @@ import rerun as rr
 from covviz.diagnosis import FrameEvidence
 from covviz.features import FEATURE_NAMES
 from covviz.viz import paths as P
-from covviz.viz.description import viewer_safe
 from covviz.viz.diagnostics import LikelihoodSlices
 
 __all__ = [
@@ -52,9 +51,11 @@ LABEL_STYLE = {
 LOG_RANGE = (-4.0, 3.0)
 #: ... and of their difference (diverging, 0 in the middle).
 DIFF_RANGE = (-1.5, 1.5)
-#: Pixels per heatmap cell, and the gap between the three heatmaps.
-CELL = 1.0
-GAP = 3.0
+#: Cells of gap between the three heatmaps, and screen pixels per cell in the view's underlay.
+GAP = 2.0
+HEAT_CELL = 16
+#: Colour of the text of axis labels (a label is drawn in its point's colour).
+TEXT_COLOR = (200, 200, 200)
 #: Slices plot: x extent of each panel and the d_eff drawn at the bottom (y grows downwards).
 SLICE_WIDTH = 100.0
 SLICE_GAP = 30.0
@@ -89,32 +90,47 @@ def log_static(rec: rr.RecordingStream, p: P.TrackerPaths, name: str, color, wit
     _log_slice_axes(rec, p)
 
 
-def _log_heatmap_axes(rec, p: P.TrackerPaths) -> None:
+def heatmap_underlay() -> tuple[np.ndarray, tuple[float, float]]:
+    """The static part of the heatmap view, drawn once: titles, feature names, colour bars and their ticks.
+
+    Text drawn into an image scales with the view (labels logged as points keep their screen size
+    and pile up on nine rows of small cells). Returns the RGB image and the pixel offset where
+    the per-frame heatmaps (:func:`heatmap_image`, one image pixel per cell) go, scaled by
+    :data:`HEAT_CELL`.
+    """
     n = len(FEATURE_NAMES)
-    labels, pos = [], []
+    c, gap = HEAT_CELL, int(GAP * HEAT_CELL)
+    left, top = 78, 26
+    w_panels = 3 * n * c + 2 * gap
+    H, W = top + n * c + 50, left + w_panels + 12
+    img = np.full((H, W, 3), 14, np.uint8)
+    font, white = cv2.FONT_HERSHEY_SIMPLEX, (215, 215, 215)
     for k, title in enumerate(("template logm(C)", "observed logm(C*)", "difference")):
-        x0 = k * (n * CELL + GAP)
-        labels.append(title)
-        pos.append((x0 + n * CELL / 2, -1.6))
+        x0 = left + k * (n * c + gap)
+        (tw, _), _ = cv2.getTextSize(title, font, 0.42, 1)
+        cv2.putText(img, title, (x0 + (n * c - tw) // 2, top - 9), font, 0.42, white, 1, cv2.LINE_AA)
     for i, f in enumerate(FEATURE_NAMES):
-        labels.append(viewer_safe(f))
-        pos.append((-0.3, i * CELL + CELL / 2))
-    rec.log(f"{p.heatmap}/labels", rr.Points2D(pos, labels=labels, radii=[0.0], colors=[(0, 0, 0, 0)],
-                                               show_labels=True), static=True)
-    # Colour bars under the panels, with their ends written on them.
-    bar = np.linspace(0, 1, 64)[None, :].repeat(2, axis=0)
-    rec.log(f"{p.heatmap}/bar_log", rr.Transform3D(translation=[0.0, n * CELL + 1.0, 0.0],
-                                                   scale=[2 * (n * CELL + GAP) - GAP, 0.8, 1.0]),
-            rr.Image(_viridis(bar)[..., :3].repeat(1, axis=0), color_model="RGB"), static=True)
-    x_diff = 2 * (n * CELL + GAP)
-    rec.log(f"{p.heatmap}/bar_diff", rr.Transform3D(translation=[x_diff, n * CELL + 1.0, 0.0], scale=[n * CELL, 0.8, 1.0]),
-            rr.Image(_diverging(bar * 2 - 1), color_model="RGB"), static=True)
-    ticks = [
-        (0.0, f"{LOG_RANGE[0]:g}"), (2 * (n * CELL + GAP) - GAP, f"{LOG_RANGE[1]:g}"),
-        (x_diff, f"{DIFF_RANGE[0]:g}"), (x_diff + n * CELL / 2, "0"), (x_diff + n * CELL, f"{DIFF_RANGE[1]:g}"),
-    ]
-    rec.log(f"{p.heatmap}/ticks", rr.Points2D([(x, n * CELL + 2.8) for x, _ in ticks], labels=[t for _, t in ticks],
-                                              radii=[0.0], colors=[(0, 0, 0, 0)], show_labels=True), static=True)
+        (tw, th), _ = cv2.getTextSize(f, font, 0.38, 1)
+        cv2.putText(img, f, (left - 6 - tw, top + i * c + (c + th) // 2), font, 0.38, white, 1, cv2.LINE_AA)
+    y_bar = top + n * c + 8
+    w_log = 2 * n * c + gap
+    img[y_bar : y_bar + 8, left : left + w_log] = _viridis(np.linspace(0, 1, w_log))[None]
+    x_diff = left + 2 * (n * c + gap)
+    img[y_bar : y_bar + 8, x_diff : x_diff + n * c] = _diverging(np.linspace(-1, 1, n * c))[None]
+    for x, t in ((left, f"{LOG_RANGE[0]:g}"), (left + w_log, f"{LOG_RANGE[1]:g}"), (x_diff, f"{DIFF_RANGE[0]:g}"),
+                 (x_diff + n * c // 2, "0"), (x_diff + n * c, f"+{DIFF_RANGE[1]:g}")):
+        (tw, _), _ = cv2.getTextSize(t, font, 0.38, 1)
+        cv2.putText(img, t, (int(np.clip(x - tw // 2, 0, W - tw)), y_bar + 24), font, 0.38, white, 1, cv2.LINE_AA)
+    cv2.putText(img, "rows and columns: the 9 features, in this order", (left, H - 6), font, 0.36, (150, 150, 150), 1,
+                cv2.LINE_AA)
+    return img, (float(left), float(top))
+
+
+def _log_heatmap_axes(rec, p: P.TrackerPaths) -> None:
+    under, (x0, y0) = heatmap_underlay()
+    rec.log(f"{p.heatmap}/axes", rr.Image(under, color_model="RGB", draw_order=-10.0), static=True)
+    rec.log(f"{p.heatmap}/image", rr.Transform3D(translation=[x0, y0, 0.0], scale=[HEAT_CELL, HEAT_CELL, 1.0]),
+            static=True)
 
 
 def _log_slice_axes(rec, p: P.TrackerPaths) -> None:
@@ -126,13 +142,11 @@ def _log_slice_axes(rec, p: P.TrackerPaths) -> None:
     ]
     rec.log(f"{p.slices}/axes", rr.LineStrips2D(axes, colors=[(110, 110, 110)], radii=[0.3], draw_order=1.0), static=True)
     labels = [
-        ((SLICE_WIDTH / 2, SLICE_HEIGHT + 6), "scale (x0.6 .. x1.67; middle = the pose's)"),
-        ((x1 + SLICE_WIDTH / 2, SLICE_HEIGHT + 6), "rotation (-20 .. +20 deg)"),
-        ((-6, 0), f"d={SLICE_D_MAX:g}"), ((-6, SLICE_HEIGHT), "d=0"),
-        ((SLICE_WIDTH / 2, -6), "lower = the likelihood prefers it"),
+        ((SLICE_WIDTH / 2, SLICE_HEIGHT + 8), "scale x0.6 .. x1.67"),
+        ((x1 + SLICE_WIDTH / 2, SLICE_HEIGHT + 8), "rotation -20 .. +20 deg"),
     ]
     rec.log(f"{p.slices}/labels", rr.Points2D([q for q, _ in labels], labels=[t for _, t in labels], radii=[0.0],
-                                              colors=[(0, 0, 0, 0)], show_labels=True), static=True)
+                                              colors=[TEXT_COLOR], show_labels=True), static=True)
 
 
 # --------------------------------------------------------------------------- #
@@ -163,7 +177,7 @@ def zoom_image(patches: list[np.ndarray | None], gap: int = 2) -> np.ndarray:
 
 
 def log_zoom(rec: rr.RecordingStream, p: P.TrackerPaths, image: np.ndarray) -> None:
-    rec.log(p.zoom, rr.Image(image, color_model="L"))
+    rec.log(f"{p.zoom}/patches", rr.Image(image, color_model="L"))
 
 
 def _viridis(v: np.ndarray) -> np.ndarray:
@@ -191,7 +205,7 @@ def heatmap_image(template_log: np.ndarray, observed_log: np.ndarray) -> np.ndar
 
 def log_heatmap(rec: rr.RecordingStream, p: P.TrackerPaths, template_log, observed_log) -> None:
     img = heatmap_image(np.asarray(template_log), np.asarray(observed_log))
-    rec.log(f"{p.heatmap}/image", rr.Image(img, color_model="RGB"))
+    rec.log(f"{p.heatmap}/image", rr.Image(img, color_model="RGB", draw_order=0.0, magnification_filter="Nearest"))
 
 
 def _slice_curve(x0: float, values: np.ndarray) -> np.ndarray:
