@@ -41,6 +41,7 @@ from dataclasses import asdict, dataclass, field
 import cv2
 import numpy as np
 
+from covviz import kernels
 from covviz.descriptor import covariance, quadrant_covariances
 from covviz.dynamics import KinematicModel, propagate_kinematics, template_walk
 from covviz.features import N_FEATURES, patch_features, pose_corners, pose_to_box, warp_patches
@@ -316,6 +317,8 @@ class ManifoldTracker:
         return g
 
     def _observe_chunk(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
+        if kernels.JIT_ENABLED:
+            return self._observe_chunk_jit(gray, poses, templates)
         cfg = self.config
         t0 = time.perf_counter()
         P = warp_patches(gray, poses, self.base_wh, cfg.patch_size, 1, self._step_exact)
@@ -334,6 +337,26 @@ class ManifoldTracker:
                 q = quadrant_distances(Q, self.quadrant_reference, self._quadrant_logdet)
         t4 = time.perf_counter()
         return C, Q, d, q, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)
+
+    def _observe_chunk_jit(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
+        """:meth:`_observe_chunk` with the compiled kernels (:mod:`covviz.kernels`).
+
+        Warp, features and covariance are one fused kernel; its time is
+        reported under "features" ("warp" and "covariance" are 0).
+        """
+        cfg = self.config
+        t0 = time.perf_counter()
+        C, Q = kernels.warp_descriptors_fast(
+            gray, poses, self.base_wh, cfg.patch_size, self._step_exact, cfg.eps, cfg.gain_normalize, cfg.quadrants
+        )
+        t1 = time.perf_counter()
+        d = q = None
+        if templates is not None:
+            d = kernels.template_distances_fast(templates, C)
+            if Q is not None:
+                q = kernels.quadrant_distances_fast(Q, self.quadrant_reference, self._quadrant_logdet)
+        t2 = time.perf_counter()
+        return C, Q, d, q, (0.0, t1 - t0, 0.0, t2 - t1)
 
     def _observe(self, gray: np.ndarray, poses: np.ndarray, templates=None, timings: dict | None = None):
         """Descriptors at ``poses`` and, given templates, each one's distance to them.
