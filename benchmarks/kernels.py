@@ -1,0 +1,214 @@
+"""The compiled kernels (covviz.kernels) against the numpy path, stage by stage, side by side.
+
+Prints the machine, then:
+
+1. **stages** at ``--particles`` particles on a real frame (poses around the
+   ground truth, templates scattered around the descriptor there, as the
+   tracker's are): the numpy stage and its kernel, interleaved call for call
+   ``--repeat`` times in this process; the best of each and their ratio;
+2. **update()** of ``manifold`` (quadrants on) and ``manifold-paper``
+   (quadrants off), with and without the kernels, and OpenCV's CSRT, on the
+   same decoded frames: passes interleaved, the best pass of each, and the
+   ratio CSRT time / tracker time (> 1: faster than CSRT);
+3. with ``--cold``, the cold compile time: a fresh process with an empty numba
+   cache running :func:`covviz.kernels.warmup`.
+
+The machine is usually shared and noisy: quote the ratios, and an absolute
+figure only with the CPU line printed above it.
+
+Usage::
+
+    python benchmarks/kernels.py                                  # Car4, 600 particles
+    python benchmarks/kernels.py ../shared/sequences/Crossing --frames 60 --repeat 30
+    python benchmarks/kernels.py --no-update --cold               # stages and the compile time only
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from speed import _set_threads, machine, time_tracker
+
+DEFAULT_SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "sequences" / "Car4"
+
+
+def interleaved(fns: dict, repeat: int) -> dict:
+    """Best time (s) of each callable over ``repeat`` rounds, the callables alternating within a round."""
+    best = dict.fromkeys(fns, np.inf)
+    for _ in range(repeat):
+        for k, f in fns.items():
+            t0 = time.perf_counter()
+            f()
+            best[k] = min(best[k], time.perf_counter() - t0)
+    return best
+
+
+def stage_inputs(seq, frame: int, n: int, rng):
+    """Grey frame, ``n`` poses around the ground truth, base size, templates and quadrant reference."""
+    from covviz import spd
+    from covviz.descriptor import quadrant_covariances
+    from covviz.features import patch_features, warp_patches
+    from covviz.trackers.base import to_gray
+
+    f = seq.frame(frame)
+    gray = to_gray(f.image)
+    x, y, w, h = seq.init_box if f.gt is None else f.gt
+    wh = (float(w), float(h))
+    base = np.array([x + w / 2, y + h / 2, 1.0, 0.0])
+    jit = rng.normal(0.0, [0.1 * w, 0.1 * h, 0.05, 0.05], (n, 4))
+    poses = base + jit
+    P = warp_patches(gray, base[None], wh, 32, 1, 1.0)
+    C0, Q0 = quadrant_covariances(patch_features(P, gain_normalize=True, quadrants=True), 1e-3)
+    W = rng.normal(0.0, 0.05, (n, 9, 9))
+    L = spd.logm(C0[0]) + 0.5 * (W + np.swapaxes(W, 1, 2))
+    return gray, poses, wh, L, Q0[0], spd.logdet(Q0[0])
+
+
+def print_stages(seq, n: int, repeat: int, rng) -> None:
+    from covviz import kernels
+    from covviz.descriptor import covariance, quadrant_covariances
+    from covviz.features import patch_features, warp_patches
+    from covviz.trackers.manifold import quadrant_distances, riemann_distance_to_templates
+
+    gray, poses, wh, L, ref, ref_ld = stage_inputs(seq, min(10, len(seq) - 1), n, rng)
+    P = warp_patches(gray, poses, wh, 32, 1, 1.0)
+    F = patch_features(P, gain_normalize=True, quadrants=True)
+    C, Q = quadrant_covariances(F, 1e-3)
+    F1 = patch_features(P, gain_normalize=True)
+    kernels.warmup()
+
+    rows = [
+        # (stage, numpy callable, kernel callable or None)
+        ("warp (cv2.remap + maps)", lambda: warp_patches(gray, poses, wh, 32, 1, 1.0), None),
+        ("features", lambda: patch_features(P, gain_normalize=True, quadrants=True), None),
+        ("covariance (+quadrants)", lambda: quadrant_covariances(F, 1e-3), None),
+        ("warp+features+covariance", lambda: quadrant_covariances(
+            patch_features(warp_patches(gray, poses, wh, 32, 1, 1.0), gain_normalize=True, quadrants=True), 1e-3),
+         lambda: kernels.warp_descriptors_fast(gray, poses, wh, 32, 1.0, 1e-3, True, True)),
+        ("  from patches (no warp)", lambda: quadrant_covariances(
+            patch_features(P, gain_normalize=True, quadrants=True), 1e-3),
+         lambda: kernels.descriptors_fast(P, 1e-3, True, True)),
+        ("  without quadrants", lambda: covariance(
+            patch_features(warp_patches(gray, poses, wh, 32, 1, 1.0), gain_normalize=True), 1e-3),
+         lambda: kernels.warp_descriptors_fast(gray, poses, wh, 32, 1.0, 1e-3, True, False)),
+        ("template distances", lambda: riemann_distance_to_templates(L, C),
+         lambda: kernels.template_distances_fast(L, C)),
+        ("quadrant distances", lambda: quadrant_distances(Q, ref, ref_ld),
+         lambda: kernels.quadrant_distances_fast(Q, ref, ref_ld)),
+    ]
+    fns = {}
+    for name, ref_fn, fast_fn in rows:
+        fns[(name, "numpy")] = ref_fn
+        if fast_fn is not None:
+            fns[(name, "kernel")] = fast_fn
+    best = interleaved(fns, repeat)
+    del F1
+    print(f"\nstages at {n} particles, one call each, best of {repeat} interleaved (ms, one thread)")
+    print(f"{'stage':<28} {'numpy':>8} {'kernel':>8} {'ratio':>7}")
+    for name, _, fast_fn in rows:
+        t_ref = 1e3 * best[(name, "numpy")]
+        if fast_fn is None:
+            print(f"{name:<28} {t_ref:>8.2f} {'(fused)':>8}")
+        else:
+            t_fast = 1e3 * best[(name, "kernel")]
+            print(f"{name:<28} {t_ref:>8.2f} {t_fast:>8.2f} {t_ref / t_fast:>6.1f}x")
+
+
+def print_updates(seq, n: int, frames: int, repeat: int, observe_threads: int) -> None:
+    from covviz import kernels
+    from covviz.trackers import make_tracker
+    from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
+
+    m = min(frames + 1, len(seq))
+    images = [seq.frame(i).image for i in range(m)]
+    box = seq.init_box
+    kernels.warmup()
+    variants = {}
+    for quad, label in ((True, "manifold"), (False, "manifold-paper")):
+        cfg = ManifoldConfig(n_particles=n, threads=observe_threads, quadrants=quad)
+        for jit in (False, True):
+            variants[(label, jit)] = (lambda cfg=cfg: ManifoldTracker(cfg, rng=0), jit)
+    best = dict.fromkeys([*variants, "csrt"], (np.inf, {}))
+    saved = kernels.JIT_ENABLED
+    try:
+        for _ in range(repeat):
+            dt = time_tracker(lambda: make_tracker("csrt", rng=0), images, box, 1)
+            best["csrt"] = min(best["csrt"], dt, key=lambda v: v[0])
+            for key, (make, jit) in variants.items():
+                kernels.JIT_ENABLED = jit
+                dt = time_tracker(make, images, box, 1)
+                best[key] = min(best[key], dt, key=lambda v: v[0])
+    finally:
+        kernels.JIT_ENABLED = saved
+    csrt = best["csrt"][0]
+    stages = ("propagate", "warp", "features", "covariance", "distances", "weights", "resample")
+    print(f"\nupdate() on {m - 1} frames of {seq.name}, {n} particles, observe threads {observe_threads}, "
+          f"best of {repeat} interleaved passes (ms per frame)")
+    print(f"{'tracker':<15} {'jit':>4} {'ms':>7} {'fps':>6} {'x csrt':>7}  " + " ".join(f"{s:>9}" for s in stages))
+    for (label, jit), (dt, st) in ((k, best[k]) for k in variants):
+        print(f"{label:<15} {'on' if jit else 'off':>4} {1e3 * dt:>7.2f} {1 / dt:>6.0f} {csrt / dt:>7.2f}  "
+              + " ".join(f"{1e3 * st.get(s, 0.0):>9.2f}" for s in stages))
+    print(f"{'csrt':<15} {'':>4} {1e3 * csrt:>7.2f} {1 / csrt:>6.0f} {1.0:>7.2f}")
+    print("with the kernels, 'features' is the fused warp+features+covariance kernel (warp, covariance: 0)")
+
+
+def cold_compile_seconds() -> float:
+    """Seconds a fresh process with an empty numba cache spends in :func:`covviz.kernels.warmup`."""
+    code = "from covviz import kernels; print(kernels.kernels_cached(), kernels.warmup())"
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+        cached, seconds = out.stdout.split()
+        assert cached == "False"
+        # and a second process loads from that cache
+        out2 = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+        cached2, seconds2 = out2.stdout.split()
+    print(f"\ncold compile (fresh numba cache): {float(seconds):.1f} s; next process, from the cache "
+          f"(kernels_cached() = {cached2}): {float(seconds2):.2f} s")
+    return float(seconds)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("sequence", nargs="?", default=str(DEFAULT_SEQUENCE), help="sequence (default: shared Car4)")
+    ap.add_argument("--particles", type=int, default=600, help="particles (default 600)")
+    ap.add_argument("--frames", type=int, default=60, help="frames of update() to time (default 60)")
+    ap.add_argument("--repeat", type=int, default=15, help="interleaved rounds of the stages (default 15)")
+    ap.add_argument("--passes", type=int, default=3, help="interleaved passes of each update() (default 3)")
+    ap.add_argument("--threads", type=int, default=1, help="BLAS and OpenCV threads (default 1)")
+    ap.add_argument("--observe-threads", type=int, default=2, help="ManifoldConfig.threads (default 2)")
+    ap.add_argument("--no-update", action="store_true", help="skip the update() comparison")
+    ap.add_argument("--cold", action="store_true", help="also measure the cold compile time (~20-60 s)")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    _set_threads(args.threads)
+
+    import cv2
+    import numba
+
+    from covviz.sequences import open_sequence
+
+    seq = open_sequence(args.sequence)
+    print(machine())
+    print(f"numpy {np.__version__}, numba {numba.__version__}, OpenCV {cv2.__version__}; "
+          f"BLAS/OpenCV threads {args.threads}; sequence {seq.name}")
+    print_stages(seq, args.particles, args.repeat, np.random.default_rng(args.seed))
+    if not args.no_update:
+        print_updates(seq, args.particles, args.frames, args.passes, args.observe_threads)
+    if args.cold:
+        cold_compile_seconds()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
