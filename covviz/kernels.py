@@ -827,7 +827,7 @@ def _template_distances(L, C, out, mats, vecs, k, act):
     c, sc, t_, s_, tau_ = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4]
     # Equal blocks of at most `lanes` particles (150 -> 3 x 50, not 64 + 64 + 22).
     nb = max(1, -(-n // lanes))
-    size = -(-n // nb)
+    size = max(1, -(-n // nb))
     for i0 in range(0, n, size):
         m = min(size, n - i0)
         for l in range(m):
@@ -957,7 +957,7 @@ def _quadrant_distances(Q, ref, ref_logdet, out, mats, vecs):
     ldq, ldm, sc = vecs[0], vecs[1], vecs[2]
     # Equal blocks of at most `lanes` particles (150 -> 3 x 50, not 64 + 64 + 22).
     nb = max(1, -(-n // lanes))
-    size = -(-n // nb)
+    size = max(1, -(-n // nb))
     for i0 in range(0, n, size):
         m = min(size, n - i0)
         for k in range(nq):
