@@ -7,25 +7,29 @@ same quantities with less work:
 * :func:`warp_descriptors_fast` — from the grey frame to the descriptors in
   one pass per particle: the bilinear warp (bit for bit what
   :func:`covviz.features.warp_patches` gives), the 9 features and their
-  centred moments, quadrant by quadrant, all in scratch buffers that stay in
-  the L1 cache. Nothing of size ``n x 34 x 34`` (patches, sampling maps) or
+  moments, quadrant by quadrant, all in scratch buffers that stay in the L1
+  cache. Nothing of size ``n x 34 x 34`` (patches, sampling maps) or
   ``n x 9 x 1024`` (feature planes) is ever written to memory.
   :func:`descriptors_fast` does the same from already warped patches.
 * :func:`template_distances_fast` — ``d(expm(L_i), C_i)`` for every particle:
   the same Taylor exponential as :func:`covviz.spd.expm_taylor` and a cyclic
-  Jacobi eigensolver, vectorised *across particles* (blocks of
-  :data:`LANES` particles, structure-of-arrays).
+  Jacobi eigensolver, vectorised *across particles* (blocks of at most
+  :data:`LANES` particles, structure-of-arrays, particle index innermost).
 * :func:`quadrant_distances_fast` — ``sqrt(8·JBLD)`` of the quadrants by
   Cholesky factorisations, vectorised across particles the same way.
 
 Precision
 ---------
-Features are float32 (as in the numpy path), their moments are *centred*
-(two passes over each quadrant's 256 pixels, which sit in L1) and finished in
-float64: the descriptors are closer to a float64 oracle than the numpy path's
-raw float32 moments are. Distances are float64 throughout. Each kernel states
-its ``fastmath`` flags and why; none uses ``nnan``/``ninf``/``arcp``/``afn``,
-so divisions, square roots and logarithms are IEEE.
+Features are float32, as in the numpy path, but each is rounded once
+(differences of the unscaled patch, scaled after; see
+:func:`_region_features`); their moments are float64 (products of float32
+values are exact in float64). Distances are float64 throughout. Against a
+float64 evaluation of the same definitions, on 10 real frames, the
+descriptors agree to 2e-7 (relative, per matrix) and the distances to 1e-6;
+the numpy path's own float32 moments and features put it up to ~8e-3 and
+~5e-5 away. Each kernel states its ``fastmath`` flags and why; none uses
+``nnan``/``ninf``/``arcp``/``afn``, so divisions, square roots and logarithms
+are IEEE.
 
 Determinism
 -----------
@@ -87,8 +91,10 @@ _ENTRY_POINTS = []  # the kernels called from Python, for kernels_cached()
 _THREAD = threading.local()
 
 
-def _workspace(kind: str, d: int):
-    """This thread's scratch arrays for the lane kernels (allocated once per thread, kind and size).
+def _workspace(kind: str, d: int, mats: int, vecs: int):
+    """This thread's scratch for a lane kernel: ``mats`` (d, d, LANES) and ``vecs`` (LANES,) arrays and more.
+
+    Allocated once per thread, kind and size.
 
     Fresh allocations on every call cost more than the distances themselves:
     ~300 KB of scratch freed and re-allocated per chunk went back to the
@@ -100,7 +106,7 @@ def _workspace(kind: str, d: int):
     if ws is None:
         ws = _THREAD.ws = {}
     if key not in ws:
-        ws[key] = (np.zeros((7, d, d, LANES)), np.zeros((6, LANES)), np.zeros(LANES, dtype=np.int64),
+        ws[key] = (np.zeros((mats, d, d, LANES)), np.zeros((vecs, LANES)), np.zeros(LANES, dtype=np.int64),
                    np.zeros(LANES, dtype=np.bool_))
     return ws[key]
 
@@ -821,7 +827,7 @@ def _lanes_jacobi(A, m, tol, max_sweeps, t_, s_, tau_, act):
 
 @_jit(_FM_DIST, entry=True)
 def _template_distances(L, C, out, mats, vecs, k, act):
-    """The kernel of :func:`template_distances_fast`; ``mats`` (7, 9, 9, lanes), ``vecs`` (6, lanes),
+    """The kernel of :func:`template_distances_fast`; ``mats`` (6, 9, 9, lanes), ``vecs`` (5, lanes),
     ``k`` (lanes,) int64 and ``act`` (lanes,) bool are its workspace."""
     n = L.shape[0]
     lanes = mats.shape[3]
@@ -892,7 +898,7 @@ def template_distances_fast(L, C) -> np.ndarray:
     if not (np.isfinite(L).all() and np.isfinite(C).all()):
         raise ValueError("L or C contains NaN or inf; check the inputs that produced it")
     out = np.empty(len(L))
-    _template_distances(L, C, out, *_workspace("template", 9))
+    _template_distances(L, C, out, *_workspace("template", 9, 6, 5))
     return out
 
 
@@ -1006,8 +1012,8 @@ def quadrant_distances_fast(Q, ref, ref_logdet) -> np.ndarray:
     if Q.ndim != 4 or ref.shape != Q.shape[1:] or ref_logdet.shape != Q.shape[1:2]:
         raise ValueError(f"shapes do not match: Q {Q.shape}, ref {ref.shape}, ref_logdet {ref_logdet.shape}")
     out = np.empty(Q.shape[:2])
-    mats, vecs, _, _ = _workspace("quadrant", Q.shape[2])
-    _quadrant_distances(Q, ref, ref_logdet, out, mats[:2], vecs[:3])
+    mats, vecs, _, _ = _workspace("quadrant", Q.shape[2], 2, 3)
+    _quadrant_distances(Q, ref, ref_logdet, out, mats, vecs)
     return out
 
 
