@@ -61,10 +61,14 @@ import numpy as np
 
 from covviz.features import FEATURE_SCALE, N_FEATURES
 
-try:
-    import numba
-except ImportError:  # pragma: no cover - numba is a dependency; the numpy path must not need it
-    numba = None
+#: ``COVVIZ_NO_JIT=1`` (or ``true``/``yes``): the numpy path, and numba is not even imported.
+_DISABLED = os.environ.get("COVVIZ_NO_JIT", "").strip().lower() in ("1", "true", "yes")
+numba = None
+if not _DISABLED:
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency; the numpy path must not need it
+        numba = None
 
 __all__ = [
     "JIT_ENABLED",
@@ -78,8 +82,9 @@ __all__ = [
 ]
 
 #: True when the tracker should use these kernels: numba is importable and
-#: the environment variable ``COVVIZ_NO_JIT`` is not set to ``1``.
-JIT_ENABLED = numba is not None and os.environ.get("COVVIZ_NO_JIT", "").strip().lower() not in ("1", "true", "yes")
+#: the environment variable ``COVVIZ_NO_JIT`` is not set to ``1``. (Without
+#: numba the functions below still run, as plain and very slow Python.)
+JIT_ENABLED = numba is not None
 
 #: Particles per structure-of-arrays block in :func:`template_distances_fast`
 #: (its loops over particles are the vectorised ones). 64: 9x9 matrices of 64
@@ -1065,7 +1070,11 @@ def warmup(callback: Callable[[], None] | None = None) -> float:
     callback : callable, optional
         Called once, before anything else, when the kernels are not all cached
         (e.g. to print "compiling kernels (once)…").
+
+    Does nothing (and returns 0) when :data:`JIT_ENABLED` is False.
     """
+    if not JIT_ENABLED:
+        return 0.0
     t0 = time.perf_counter()
     if callback is not None and not kernels_cached():
         callback()
