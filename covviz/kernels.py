@@ -142,11 +142,11 @@ def _jit(fastmath, entry=False):
 # fastmath sets. The warp must reproduce cv2.remap bit for bit, which computes
 # p00 + a·(p01 − p00) with fused multiply-adds: "contract" and nothing else.
 _FM_WARP = {"contract"}
-# Features: no fastmath at all. The features must be the numpy path's float32
-# values (the angle aside): with "reassoc", LLVM rewrote the gain scaling
-# P·(1/g) and the second differences, and moved nearly flat patches' angles
-# by up to 5e-3 (tiny gradients of a patch rounded differently point
-# elsewhere). Their loops have no reductions, so they vectorise without it.
+# Features: no fastmath at all, every operation rounds as written (see
+# _region_features). With "reassoc", LLVM rewrote the gain scaling and the
+# second differences and moved nearly flat patches' angles by up to 5e-3
+# (tiny gradients rounded differently point elsewhere). These loops have no
+# reductions, so they vectorise without it.
 _FM_FEAT = False
 # Sums and moments: "reassoc" (the float64 sums over a quadrant's pixels
 # vectorise; their order is fixed by the patch size, the same for every
@@ -185,7 +185,8 @@ def _warp_patch(flat, H, W, a, q, B, idx, dx, dy, al, be):
     p10)``, ``f0 + β(f1 − f0)``, each a fused multiply-add. ``idx``, ``dx``,
     ``dy`` (g,) int64 and ``al``, ``be`` (g,) float32 are scratch. A row is
     two loops: the coordinates (vectorised), then the four taps and the
-    interpolation (scalar loads; the compiler does not gather).
+    interpolation (scalar loads: LLVM will not gather from an array it cannot
+    prove distinct from the one the loop stores to).
     """
     g = q.shape[0]
     lo = np.float32(-2.0)
@@ -272,7 +273,7 @@ def _region_features(B, r0, c0, hr, hc, u, mean32, kf, F):
     scales the patch first and forms ``(r + l) − 2c``, whose rounding errors
     are relative to the *intensity*: on nearly flat patches they are a large
     part of small derivatives, the angle of two such derivatives is noise,
-    and that path's descriptors (hence distances, by up to 2e-5 on real
+    and that path's descriptors (hence distances, by up to 5e-5 on real
     frames) depend on the last bit of the gain. Here every feature is within
     a few float32 roundings of its float64 value. The angle is a float32
     polynomial (:data:`_ATAN_C`, 1e-7) of the exact differences. Several
