@@ -29,7 +29,16 @@ descriptors agree to 2e-7 (relative, per matrix) and the distances to 1e-6;
 the numpy path's own float32 moments and features put it up to ~8e-3 and
 ~5e-5 away. Each kernel states its ``fastmath`` flags and why; none uses
 ``nnan``/``ninf``/``arcp``/``afn``, so divisions, square roots and logarithms
-are IEEE.
+are IEEE:
+
+=========================  =========  ============================  ==========
+kernel                     precision  fastmath                      why
+=========================  =========  ============================  ==========
+warp (``_warp_patch``)     float32    ``contract``                  cv2.remap's FMAs, bit for bit
+features                   float32    none                          every rounding as written
+sums, moments              float64    ``contract reassoc nsz``      vectorised sums (order fixed per patch)
+distances (lanes)          float64    ``contract``                  no reassociation: lanes stay independent
+=========================  =========  ============================  ==========
 
 Determinism
 -----------
@@ -38,7 +47,11 @@ run the same code whatever the batch, and the across-particle (lane) loops
 compute each lane with the same sequence of IEEE operations (fused
 multiply-adds included) whether a lane falls in the vectorised body or in the
 scalar remainder, and without a reduction across lanes. Results are bit for
-bit the same for any chunking, thread count or repetition (tested).
+bit the same for any chunking, thread count or repetition (tested). One
+caveat: with Intel's SVML installed (``icc_rt``; numba reports it as
+``numba.config.USING_SVML``), numba may vectorise the per-lane logarithms with
+SVML in a loop body and call libm in its remainder, which differ in the last
+bit; the chunking tests would then fail. It is not installed here.
 
 Switches
 --------
