@@ -792,10 +792,12 @@ def _lanes_jacobi(A, m, tol, max_sweeps, t_, s_, tau_, act):
     """Eigenvalues of symmetric (9, 9, ·) matrices, ``m`` lanes, left on the diagonal of ``A``.
 
     Cyclic Jacobi on the upper triangle. A lane rotates ``(p, q)`` only where
-    ``|a_pq| > tol·sqrt(|a_pp·a_qq|)`` (relative accuracy for positive-definite
-    matrices) and is otherwise left exactly as it is, so a converged lane is
-    unchanged by the sweeps its neighbours still need. Returns the sweeps run.
+    ``a_pq² > tol²·|a_pp·a_qq|`` (relative accuracy for positive-definite
+    matrices) and is otherwise left exactly as it is (``t = s = τ = 0``), so a
+    converged lane is unchanged by the sweeps its neighbours still need.
+    Returns the sweeps run.
     """
+    tol2 = tol * tol
     sweeps = 0
     for _ in range(max_sweeps):
         any_rot = False
@@ -807,17 +809,21 @@ def _lanes_jacobi(A, m, tol, max_sweeps, t_, s_, tau_, act):
                 nact = 0
                 for l in range(m):
                     a = apq[l]
-                    big = abs(a) > tol * math.sqrt(abs(app[l] * aqq[l]))
-                    aa = a if big else 1.0
-                    theta = (aqq[l] - app[l]) / (2.0 * aa)
-                    t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
-                    t = t if theta >= 0.0 else -t
+                    big = a * a > tol2 * abs(app[l] * aqq[l])
+                    # t = tan of the rotation angle, the smaller root of
+                    # t² + 2θt − 1 = 0 with θ = d / 2a (Rutishauser), written
+                    # without θ: one square root and one division.
+                    d = aqq[l] - app[l]
+                    ad = abs(d)
+                    t = 2.0 * (a if d >= 0.0 else -a) / (ad + math.sqrt(d * d + 4.0 * (a * a)))
                     t = t if big else 0.0
-                    c = 1.0 / math.sqrt(t * t + 1.0)
-                    s = t * c
+                    # s = sin = t / r, tau = s / (1 + cos) = t / (1 + r), r = sqrt(1 + t²):
+                    # one division for both.
+                    r = math.sqrt(t * t + 1.0)
+                    w = t / (r * (1.0 + r))
                     t_[l] = t
-                    s_[l] = s
-                    tau_[l] = s / (1.0 + c)
+                    s_[l] = w * (1.0 + r)
+                    tau_[l] = w * r
                     act[l] = big
                     nact += big
                 if nact == 0:
