@@ -12,7 +12,9 @@ Prints the machine, then:
    ratio CSRT time / tracker time (> 1: faster than CSRT), in wall-clock time
    and in process CPU time (the work, all threads: other jobs on a shared
    machine inflate it much less than the wall-clock time);
-3. with ``--cold``, the cold compile time: a fresh process with an empty numba
+3. with ``--accuracy``, the largest errors of the kernels and of the numpy
+   path against the definition evaluated in float64, on 10 real frames;
+4. with ``--cold``, the cold compile time: a fresh process with an empty numba
    cache running :func:`covviz.kernels.warmup`.
 
 The machine is usually shared and noisy: quote the ratios, and an absolute
@@ -23,6 +25,7 @@ Usage::
     python benchmarks/kernels.py                                  # Car4, 600 particles
     python benchmarks/kernels.py ../shared/sequences/Crossing --frames 60 --repeat 30
     python benchmarks/kernels.py --no-update --cold               # stages and the compile time only
+    python benchmarks/kernels.py --no-update --accuracy           # stages and the errors against float64
 """
 
 from __future__ import annotations
@@ -187,6 +190,95 @@ def print_updates(seq, n: int, frames: int, repeat: int, observe_threads: int) -
           "wall pass; with the kernels, 'features' is the fused warp+features+covariance kernel (warp, covariance: 0)")
 
 
+ACCURACY_FRAMES = (("Car4", 180), ("Car4", 300), ("Car4", 420), ("Crossing", 40), ("Crossing", 100),
+                   ("Jogging-1", 50), ("Bolt2", 100), ("Couple", 60), ("Football1", 30), ("Human3", 100))
+
+
+def oracle64(P: np.ndarray, eps: float):
+    """Float64 descriptors ``(C, Q)`` of bordered patches from the definition (gain-normalised, quadrants)."""
+    from covviz import spd
+    from covviz.features import FEATURE_SCALE
+
+    P = np.asarray(P, dtype=np.float64)
+    P = P / np.maximum(P[:, 1:-1, 1:-1].mean(axis=(1, 2), keepdims=True), 1e-3)
+    c = P[:, 1:-1, 1:-1]
+    ix, iy = (P[:, 1:-1, 2:] - P[:, 1:-1, :-2]) / 2, (P[:, 2:, 1:-1] - P[:, :-2, 1:-1]) / 2
+    ixx, iyy = P[:, 1:-1, 2:] - 2 * c + P[:, 1:-1, :-2], P[:, 2:, 1:-1] - 2 * c + P[:, :-2, 1:-1]
+    n, S = len(P), c.shape[1]
+    xx, yy = np.meshgrid((np.arange(S) + 0.5) / S - 0.5, (np.arange(S) + 0.5) / S - 0.5)
+    F = np.stack([np.broadcast_to(xx, c.shape), np.broadcast_to(yy, c.shape), c, np.abs(ix), np.abs(iy),
+                  np.hypot(ix, iy), np.arctan2(np.abs(ix), np.abs(iy)), np.abs(ixx), np.abs(iyy)], 1)
+    F = F * np.asarray(FEATURE_SCALE, dtype=np.float64)[None, :, None, None]
+
+    def cov(X):
+        X = X - X.mean(axis=-1, keepdims=True)
+        return spd.regularize(X @ np.swapaxes(X, -1, -2) / (X.shape[-1] - 1), eps)
+
+    h = S // 2
+    Q = np.stack([cov(F[:, :, r : r + h, k : k + h].reshape(n, 9, -1)) for r, k in ((0, 0), (0, h), (h, 0), (h, h))],
+                 axis=1)
+    return cov(F.reshape(n, 9, -1)), Q
+
+
+def print_accuracy(folder: Path, rng) -> None:
+    """Largest errors against :func:`oracle64` on real frames: the kernels and the numpy path."""
+    from covviz import kernels, spd
+    from covviz.descriptor import quadrant_covariances
+    from covviz.features import patch_features, warp_patches
+    from covviz.sequences import open_sequence
+    from covviz.trackers.base import to_gray
+    from covviz.trackers.manifold import quadrant_distances, riemann_distance_to_templates
+
+    def frob(A, B):
+        return float((np.linalg.norm(A - B, axis=(-1, -2)) / np.linalg.norm(B, axis=(-1, -2))).max())
+
+    worst: dict[str, list[float]] = {}
+    npatch = 0
+    for name, k in ACCURACY_FRAMES:
+        if not (folder / name).is_dir():
+            continue
+        f = open_sequence(folder / name).frame(k)
+        gray, (x, y, w, h) = to_gray(f.image), f.gt
+        H, W = gray.shape
+        near = np.array([x + w / 2, y + h / 2, 1.0, 0.0]) + rng.normal(0, [0.15 * w, 0.15 * h, 0.1, 0.15], (300, 4))
+        cand = np.column_stack([rng.uniform(0, W, 400), rng.uniform(0, H, 400), rng.uniform(0.4, 1.5, 400),
+                                rng.uniform(-0.5, 0.5, 400)])
+        Pc = warp_patches(gray, cand, (w, h), 32, 1, 1.0)[:, 1:-1, 1:-1]
+        dark = cand[np.argsort(Pc.mean(axis=(1, 2)))[:15]]
+        flat = cand[np.argsort(np.abs(np.diff(Pc, axis=2)).mean(axis=(1, 2)))[:15]]
+        border = np.column_stack([rng.choice([-0.3 * w, W + 0.3 * w], 10), rng.uniform(-h, H + h, 10),
+                                  rng.uniform(0.5, 2.0, 10), rng.uniform(-1, 1, 10)])
+        poses = np.concatenate([near, dark, flat, border])
+        P = warp_patches(gray, poses, (w, h), 32, 1, 1.0)
+        Co, Qo = oracle64(P, 1e-3)
+        Wn = rng.normal(0, 0.05, (len(P), 9, 9))
+        L = spd.logm(Co[0]) + 0.5 * (Wn + np.swapaxes(Wn, 1, 2))
+        ref, ref_ld = Qo[0], spd.logdet(Qo[0])
+        do, qo = riemann_distance_to_templates(L, Co), quadrant_distances(Qo, ref, ref_ld)
+        F = patch_features(P, gain_normalize=True, quadrants=True)
+        paths = {
+            "kernels": kernels.warp_descriptors_fast(gray, poses, (w, h), 32, 1.0, 1e-3, True, True),
+            "numpy (the tracker's: float32 moments)": quadrant_covariances(F, 1e-3),
+            "numpy features, float64 moments": quadrant_covariances(F.astype(np.float64), 1e-3),
+        }
+        for label, (C, Q) in paths.items():
+            d = riemann_distance_to_templates(L, C) if label != "kernels" else kernels.template_distances_fast(L, C)
+            q = quadrant_distances(Q, ref, ref_ld) if label != "kernels" else kernels.quadrant_distances_fast(
+                Q, ref, ref_ld)
+            e = [frob(C, Co), frob(Q, Qo), float(np.abs(d - do).max()), float(np.abs(q - qo).max())]
+            worst[label] = [max(a, b) for a, b in zip(worst.get(label, [0.0] * 4), e, strict=True)]
+        npatch += len(P)
+    if not worst:
+        print(f"\n(accuracy: no sequences under {folder})")
+        return
+    print(f"\naccuracy against float64 (the definition evaluated in float64), {npatch} patches of "
+          f"{len(ACCURACY_FRAMES)} real frames (around the ground truth, dark, flat, over the border): largest")
+    print(f"{'path':<40} {'C rel':>8} {'Q rel':>8} {'d abs':>8} {'q abs':>8}")
+    for label, e in worst.items():
+        print(f"{label:<40} " + " ".join(f"{v:>8.1e}" for v in e))
+    print("C, Q rel: ||ΔC||_F / ||C||_F per matrix; d: template distance, q: quadrant distance")
+
+
 def cold_compile_seconds() -> float:
     """Seconds a fresh process with an empty numba cache spends in :func:`covviz.kernels.warmup`."""
     code = "from covviz import kernels; print(kernels.kernels_cached(), kernels.warmup())"
@@ -215,6 +307,8 @@ def main(argv=None) -> int:
     ap.add_argument("--observe-threads", type=int, default=2, help="ManifoldConfig.threads (default 2)")
     ap.add_argument("--no-update", action="store_true", help="skip the update() comparison")
     ap.add_argument("--cold", action="store_true", help="also measure the cold compile time (~20-60 s)")
+    ap.add_argument("--accuracy", action="store_true",
+                    help="also print the largest errors against float64 on 10 real frames (needs ../shared)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     _set_threads(args.threads)
@@ -231,6 +325,8 @@ def main(argv=None) -> int:
     print_stages(seq, args.particles, args.repeat, np.random.default_rng(args.seed))
     if not args.no_update:
         print_updates(seq, args.particles, args.frames, args.passes, args.observe_threads)
+    if args.accuracy:
+        print_accuracy(Path(args.sequence).resolve().parent, np.random.default_rng(args.seed))
     if args.cold:
         cold_compile_seconds()
     return 0
