@@ -453,6 +453,11 @@ def bench(
             "%d of %d jobs already done in %s; running the other %d", skipped, len(all_jobs), out, len(todo)
         )
 
+    if todo and any(j.tracker.startswith("manifold") for j in todo):
+        from covviz import kernels
+
+        # Once here, not in every fresh worker at the same time.
+        kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
     ran, failed = _run_jobs(todo, out, jobs, progress)
     if failed:
         for label, msg in failed:

@@ -314,6 +314,15 @@ def cmd_track(args) -> int:
         return _track(args)
 
 
+def _warm_kernels(trackers) -> None:
+    """Compile the manifold tracker's kernels before the run (once per install; then loaded from the cache)."""
+    from covviz import kernels
+
+    if kernels.JIT_ENABLED and any(getattr(getattr(t, "config", None), "jit", False) for t in trackers):
+        took = kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
+        log.debug("kernels ready in %.1f s", took)
+
+
 def _track(args) -> int:
     from covviz.trackers.base import check_init_box
 
@@ -324,6 +333,7 @@ def _track(args) -> int:
     check_init_box(seq.init_box, first.image.shape)
     _check_out_dir(args.out)
     trackers = _make_trackers(args.trackers, args.seed, args.particles)
+    _warm_kernels(trackers)
     with contextlib.ExitStack() as stack:  # the trackers' threads end with the run
         for tr in trackers:
             if hasattr(tr, "close"):

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from covviz import kernels
 from covviz.descriptor import covariance, quadrant_covariances
 from covviz.features import N_FEATURES, patch_features, warp_patches
 from covviz.particles import log_likelihood
@@ -147,6 +148,13 @@ class ObservationModel:
         likelihood, without the quadrant term).
     quadrant_logdet : ndarray, shape (4,), or None
         Their log-determinants.
+    jit : bool
+        Observe with the compiled kernels (:mod:`covviz.kernels`) when they are
+        available (``COVVIZ_NO_JIT=1`` or no numba: the numpy path, always).
+        The kernels fuse the warp, the features and the moments per pose and
+        agree with the numpy path to ~1e-3 in a distance (they are closer to
+        float64 arithmetic than it is); the timings then report the fused
+        kernel under ``features``.
     """
 
     base_wh: tuple[float, float]
@@ -160,6 +168,7 @@ class ObservationModel:
     quadrant_weight: float = 1.0
     quadrant_reference: np.ndarray | None = field(default=None, repr=False)
     quadrant_logdet: np.ndarray | None = field(default=None, repr=False)
+    jit: bool = True
 
     def __post_init__(self):
         object.__setattr__(self, "base_wh", (float(self.base_wh[0]), float(self.base_wh[1])))
@@ -184,6 +193,7 @@ class ObservationModel:
         quadrants: bool = True,
         quadrant_weight: float = 1.0,
         likelihood_sigma: float = 0.5,
+        jit: bool = True,
     ) -> ObservationModel:
         """The model of a tracker started on ``frame`` at ``box`` (``x, y, w, h``, 0-based pixels).
 
@@ -210,6 +220,7 @@ class ObservationModel:
             smooth_sigma=smooth_sigma,
             likelihood_sigma=likelihood_sigma,
             quadrant_weight=quadrant_weight,
+            jit=jit,
         )
         if quadrants:
             if patch_size % 2:
@@ -232,6 +243,7 @@ class ObservationModel:
             quadrants=config.quadrants,
             quadrant_weight=config.quadrant_weight,
             likelihood_sigma=config.likelihood_sigma,
+            jit=getattr(config, "jit", True),
         )
 
     def _fields(self) -> dict:
@@ -273,13 +285,28 @@ class ObservationModel:
     def _sample_step(self):
         return self.step_xy if self.step > 1 else 1.0
 
+    @property
+    def compiled(self) -> bool:
+        """Whether this model observes with the compiled kernels (``jit`` and available)."""
+        return self.jit and kernels.JIT_ENABLED
+
     def _observe_quadrants(self, gray: np.ndarray, poses: np.ndarray) -> np.ndarray:
-        P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
-        F = patch_features(P, gain_normalize=self.gain_normalize, quadrants=True)
-        return quadrant_covariances(F, self.eps)[1]
+        return self.quadrant_descriptors(gray, poses)[1]
+
+    def _template_distances(self, L: np.ndarray, C: np.ndarray) -> np.ndarray:
+        if self.compiled:
+            return kernels.template_distances_fast(L, np.broadcast_to(C, L.shape))
+        return distance_riemann_log(L, C)
+
+    def _quadrant_distances(self, Q: np.ndarray) -> np.ndarray:
+        if self.compiled:
+            return kernels.quadrant_distances_fast(Q, self.quadrant_reference, self.quadrant_logdet)
+        return distance_jbld(self.quadrant_reference, Q, logdet_a=self.quadrant_logdet)
 
     def _chunk(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
         """One chunk: descriptors (and distances), with the seconds of its four stages."""
+        if self.compiled:
+            return self._chunk_compiled(gray, poses, templates)
         t0 = time.perf_counter()
         P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
         t1 = time.perf_counter()
@@ -297,6 +324,22 @@ class ObservationModel:
                 q = distance_jbld(self.quadrant_reference, Q, logdet_a=self.quadrant_logdet)
         t4 = time.perf_counter()
         return C, Q, d, q, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)
+
+    def _chunk_compiled(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
+        """:meth:`_chunk` with the compiled kernels: warp, features and covariance in one (timed as ``features``)."""
+        t0 = time.perf_counter()
+        C, Q = kernels.warp_descriptors_fast(
+            gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize,
+            self.quadrants,
+        )
+        t1 = time.perf_counter()
+        d = q = None
+        if templates is not None:
+            d = kernels.template_distances_fast(templates, C)
+            if Q is not None:
+                q = kernels.quadrant_distances_fast(Q, self.quadrant_reference, self.quadrant_logdet)
+        t2 = time.perf_counter()
+        return C, Q, d, q, (0.0, t1 - t0, 0.0, t2 - t1)
 
     def observe(
         self,
@@ -380,6 +423,10 @@ class ObservationModel:
         quadrants and not others).
         """
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
+        if self.compiled:
+            return kernels.warp_descriptors_fast(
+                gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize, True
+            )
         P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
         F = patch_features(P, gain_normalize=self.gain_normalize, quadrants=True)
         return quadrant_covariances(F, self.eps)
@@ -403,12 +450,11 @@ class ObservationModel:
         ob = self.observe(gray, pose)
         C = ob.descriptors[0]
         d = np.concatenate(
-            [distance_riemann_log(L[i : i + OBSERVE_CHUNK], C) for i in range(0, len(L), OBSERVE_CHUNK)]
+            [self._template_distances(L[i : i + OBSERVE_CHUNK], C) for i in range(0, len(L), OBSERVE_CHUNK)]
         ) if len(L) else np.zeros(0)
         q = None
         if self.quadrants:
-            q = distance_jbld(self.quadrant_reference, ob.quadrants, logdet_a=self.quadrant_logdet)
-            q = np.broadcast_to(q, (len(L), 4))
+            q = np.broadcast_to(self._quadrant_distances(ob.quadrants), (len(L), 4))
         return self.likelihood_distance(d, q)
 
     def descriptors(self, gray: np.ndarray, poses, executor=None, threads: int = 1) -> np.ndarray:

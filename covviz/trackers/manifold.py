@@ -108,6 +108,9 @@ class ManifoldConfig:
         docstring). Not in the paper; ``False`` gives the paper's likelihood.
     quadrant_weight : float
         Weight of the quadrant term in ``d²``.
+    jit : bool
+        Observe with the compiled kernels (:mod:`covviz.kernels`) when numba is
+        installed and ``COVVIZ_NO_JIT`` is not set; ``False``: the numpy path.
     """
 
     n_particles: int = 600
@@ -125,6 +128,7 @@ class ManifoldConfig:
     gain_normalize: bool = True
     quadrants: bool = True
     quadrant_weight: float = 1.0
+    jit: bool = True
 
     def __post_init__(self):
         for name in (
