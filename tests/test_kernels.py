@@ -34,12 +34,7 @@ from covviz.descriptor import covariance, quadrant_covariances
 from covviz.features import FEATURE_SCALE, patch_features, warp_patches
 from covviz.sequences import open_sequence
 from covviz.trackers.base import to_gray
-from covviz.trackers.manifold import (
-    ManifoldConfig,
-    ManifoldTracker,
-    quadrant_distances,
-    riemann_distance_to_templates,
-)
+from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 
 pytestmark = pytest.mark.skipif(kernels.numba is None, reason="numba is not installed")
 
@@ -178,8 +173,10 @@ def test_no_jit_environment_selects_the_numpy_path():
         "tr = ManifoldTracker(ManifoldConfig(n_particles=8), rng=0)\n"
         "tr.init(seq.frame(0).image, seq.init_box)\n"
         "poses = tr.last_record.pose[None] + np.array([[1.5, -2.0, 0.05, 0.1]])\n"
-        "C = tr.observe(seq.frame(1).image, poses)\n"
-        "P = warp_patches(to_gray(seq.frame(1).image), poses, tr.base_wh, 32, 1, 1.0)\n"
+        "m = tr.model\n"
+        "assert m.jit and not m.compiled\n"
+        "C = m.descriptors(m.prepare(seq.frame(1).image), poses)\n"
+        "P = warp_patches(to_gray(seq.frame(1).image), poses, m.base_wh, 32, 1, 1.0)\n"
         "ref = quadrant_covariances(patch_features(P, gain_normalize=True, quadrants=True), 1e-3)[0]\n"
         "assert np.array_equal(C, ref)\n"
         "print('numpy path')\n"
@@ -294,13 +291,13 @@ def test_descriptors_and_distances_on_real_patches(rng, name, frame):
     ref, ref_ld = Qo[0], spd.logdet(Qo[0])
     d = kernels.template_distances_fast(L, C)
     q = kernels.quadrant_distances_fast(Q, ref, ref_ld)
-    np.testing.assert_allclose(d, riemann_distance_to_templates(L, Co), rtol=0, atol=DIST_ATOL)
-    np.testing.assert_allclose(q, quadrant_distances(Qo, ref, ref_ld), rtol=0, atol=DIST_ATOL)
+    np.testing.assert_allclose(d, spd.distance_riemann_log(L, Co), rtol=0, atol=DIST_ATOL)
+    np.testing.assert_allclose(q, spd.distance_jbld(ref, Qo, logdet_a=ref_ld), rtol=0, atol=DIST_ATOL)
     # The tracker's numpy path, at its own accuracy (see the module docstring).
     Cn, Qn = numpy_path(P)
     assert frob_rel(C, Cn) < 1e-3 and frob_rel(Q, Qn) < 1e-3
-    np.testing.assert_allclose(d, riemann_distance_to_templates(L, Cn), rtol=0, atol=2e-2)
-    np.testing.assert_allclose(q, quadrant_distances(Qn, ref, ref_ld), rtol=0, atol=2e-2)
+    np.testing.assert_allclose(d, spd.distance_riemann_log(L, Cn), rtol=0, atol=2e-2)
+    np.testing.assert_allclose(q, spd.distance_jbld(ref, Qn, logdet_a=ref_ld), rtol=0, atol=2e-2)
     # Without quadrants (manifold-paper).
     C1, _ = kernels.warp_descriptors_fast(gray, poses, wh, 32, 1.0, EPS, True, False)
     assert frob_rel(C1, oracle(P, False)[0]) < DESC_RTOL
@@ -326,7 +323,7 @@ def test_template_distances_match_numpy(rng, n):
     d = kernels.template_distances_fast(L, C)
     assert d.shape == (n,)
     if n:
-        np.testing.assert_allclose(d, riemann_distance_to_templates(L, C), rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(d, spd.distance_riemann_log(L, C), rtol=1e-10, atol=1e-10)
         np.testing.assert_allclose(d, spd.distance_riemann(C, spd.expm(L)), rtol=1e-10, atol=1e-10)
 
 
@@ -351,7 +348,7 @@ def test_template_distances_on_large_and_zero_logs(rng):
     # The second template is very far (d = 25; the tracker's are 1-5): the
     # kernel is 4e-8 off there, numpy's function 4e-8 too (realistic ones: 1e-10).
     np.testing.assert_allclose(d, exact, rtol=1e-7)
-    np.testing.assert_allclose(d, riemann_distance_to_templates(L, C), rtol=1e-6)
+    np.testing.assert_allclose(d, spd.distance_riemann_log(L, C), rtol=1e-6)
 
 
 @pytest.mark.parametrize("n", [0, 1, 3])
@@ -361,7 +358,7 @@ def test_quadrant_distances_match_numpy(rng, n):
     q = kernels.quadrant_distances_fast(Q, ref, spd.logdet(ref))
     assert q.shape == (n, 4)
     if n:
-        np.testing.assert_allclose(q, quadrant_distances(Q, ref, spd.logdet(ref)), rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(q, spd.distance_jbld(ref, Q, logdet_a=spd.logdet(ref)), rtol=1e-10, atol=1e-10)
     # sqrt(8·J) magnifies rounding near J = 0: the two log-dets of ref (LAPACK's,
     # passed in, and the kernel's) differ by ~1e-13, which gives ~1e-6.
     np.testing.assert_allclose(kernels.quadrant_distances_fast(ref[None], ref, spd.logdet(ref)), 0.0, atol=1e-5)
@@ -436,11 +433,10 @@ def test_tracker_observes_the_same_with_and_without_jit(monkeypatch, quadrants):
     from covviz.sequences import SyntheticSequence
 
     seq = SyntheticSequence()
-    cfg = ManifoldConfig(n_particles=40, quadrants=quadrants)
     out = {}
-    for jit in (True, False):
-        monkeypatch.setattr(kernels, "JIT_ENABLED", jit)
-        tr = ManifoldTracker(cfg, rng=3)
+    for jit in (True, False):  # the config switch (COVVIZ_NO_JIT=1 is tested in a subprocess above)
+        tr = ManifoldTracker(ManifoldConfig(n_particles=40, quadrants=quadrants, jit=jit), rng=3)
+        assert tr.config.jit == jit
         tr.init(seq.frame(0).image, seq.init_box)
         tr.update(seq.frame(1).image)
         out[jit] = tr.last_record

@@ -51,8 +51,11 @@ def test_build_fixes_size_and_quadrant_references(seq, model):
     gray = model.prepare(seq.frame(0).image)
     P = warp_patches(gray, [[x + w / 2, y + h / 2, 1.0, 0.0]], (w, h), 32, 1, 1.0)
     _, Q = quadrant_covariances(patch_features(P, gain_normalize=True, quadrants=True), 1e-3)
-    np.testing.assert_array_equal(model.quadrant_reference, Q[0])
-    np.testing.assert_allclose(model.quadrant_logdet, np.linalg.slogdet(Q[0])[1], rtol=1e-12)
+    numpy_model = ObservationModel.from_config(seq.frame(0).image, seq.init_box, ManifoldConfig(jit=False))
+    np.testing.assert_array_equal(numpy_model.quadrant_reference, Q[0])  # the numpy path, bit for bit
+    # The compiled kernels (when there) observe the same, up to the numpy path's float32 moments.
+    np.testing.assert_allclose(model.quadrant_reference, Q[0], rtol=1e-4, atol=1e-9)
+    np.testing.assert_allclose(model.quadrant_logdet, np.linalg.slogdet(model.quadrant_reference)[1], rtol=1e-12)
     assert model.quadrants and "quadrant term" in model.describe()
 
 
