@@ -15,8 +15,8 @@ from covviz import spd
 from covviz.diagnosis import (
     CAUSES,
     LABELS,
-    DiagnosisConfig,
     Diagnoser,
+    DiagnosisConfig,
     FrameEvidence,
     diagnose,
     score_suspects,
@@ -42,9 +42,9 @@ def calm_history(rng, n=20, **kw):
     out = []
     for f in range(1, n + 1):
         C, Q = look(rng)
-        fields = dict(frame=f, iou=0.85, centre_error=0.05, scale_ratio=1.0, truth_motion=0.02, nearest=0.01,
-                      reach=0.95, ess_frac=0.3, brightness=np.full(4, 0.5), truth_C=C, truth_Q=Q, estimate_C=C,
-                      best_truth=1.0, best_est=1.0, label="ok")
+        fields = {"frame": f, "iou": 0.85, "centre_error": 0.05, "scale_ratio": 1.0, "truth_motion": 0.02, "nearest": 0.01,
+                      "reach": 0.95, "ess_frac": 0.3, "brightness": np.full(4, 0.5), "truth_C": C, "truth_Q": Q, "estimate_C": C,
+                      "best_truth": 1.0, "best_est": 1.0, "label": "ok"}
         fields.update(kw)
         out.append(FrameEvidence(**fields))
     return out
@@ -52,9 +52,9 @@ def calm_history(rng, n=20, **kw):
 
 def frame(f, rng, base=None, **kw):
     C, Q = look(rng, base=base)
-    fields = dict(frame=f, iou=0.05, centre_error=1.2, scale_ratio=1.0, truth_motion=0.02, nearest=0.01, reach=0.9,
-                  ess_frac=0.3, brightness=np.full(4, 0.5), truth_C=C, truth_Q=Q, estimate_C=C, best_truth=3.0,
-                  best_est=2.0, label="model")
+    fields = {"frame": f, "iou": 0.05, "centre_error": 1.2, "scale_ratio": 1.0, "truth_motion": 0.02, "nearest": 0.01, "reach": 0.9,
+                  "ess_frac": 0.3, "brightness": np.full(4, 0.5), "truth_C": C, "truth_Q": Q, "estimate_C": C, "best_truth": 3.0,
+                  "best_est": 2.0, "label": "model"}
     fields.update(kw)
     return FrameEvidence(**fields)
 
@@ -90,7 +90,7 @@ def test_illumination_is_a_strong_change_of_brightness(rng):
 
 def test_occlusion_is_some_quadrants_changing_while_another_holds(rng):
     h = calm_history(rng)
-    C, Q = look(rng)
+    _C, Q = look(rng)
     far = spd.exp_map(np.eye(9), 1.5 * np.eye(9))  # d = sqrt(9) * 1.5 = 4.5 from the baseline
     Q = Q.copy()
     Q[[1, 3]] = far
