@@ -155,7 +155,15 @@ def symmetric_noise(n: int, sigma, rng) -> np.ndarray:
     return W.reshape(n, d, d)
 
 
-def template_walk(L: np.ndarray, sigma, rng) -> np.ndarray:
-    """The paper's template random walk in log space: ``L + W`` (a new array)."""
+def template_walk(L: np.ndarray, sigma, rng, anchor: np.ndarray | None = None, pull: float = 0.0) -> np.ndarray:
+    """The paper's template random walk in log space: ``L + W`` (a new array).
+
+    With an ``anchor`` (a log-space template, ``(d, d)``) and ``pull > 0``, the
+    walk reverts towards it: ``L + pull·(anchor − L) + W`` (an
+    Ornstein–Uhlenbeck step in log space), so the templates wander around the
+    anchor instead of away from it.
+    """
     L = np.asarray(L)
+    if anchor is not None and pull > 0:
+        L = L + pull * (np.asarray(anchor, dtype=np.float64) - L)
     return L + symmetric_noise(len(L), sigma, rng)

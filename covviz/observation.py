@@ -43,14 +43,22 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from covviz import kernels
+from covviz import fgbg, kernels
 from covviz.descriptor import covariance, quadrant_covariances
-from covviz.features import N_FEATURES, patch_features, warp_patches
+from covviz.features import N_FEATURES, patch_features, pose_to_box, warp_patches
 from covviz.particles import log_likelihood
 from covviz.spd import distance_jbld, distance_riemann_log, logdet
 from covviz.trackers.base import check_init_box, to_gray
 
-__all__ = ["OBSERVE_CHUNK", "Observation", "ObservationModel", "box_to_pose", "quadrant_term"]
+__all__ = [
+    "OBSERVE_CHUNK",
+    "Observation",
+    "ObservationModel",
+    "QuadrantState",
+    "box_to_pose",
+    "quadrant_term",
+    "update_quadrant_state",
+]
 
 #: Poses per descriptor batch: the unit of work of the observation threads (fixed: see the module docstring).
 OBSERVE_CHUNK = 150
@@ -60,17 +68,78 @@ ANTIALIAS_MIN_PIXELS = 4
 ANTIALIAS_DIVISOR = 2
 
 
-def quadrant_term(q: np.ndarray) -> np.ndarray:
+def quadrant_term(q: np.ndarray, reliability: np.ndarray | None = None) -> np.ndarray:
     """Mean of the three smallest squared quadrant distances of each row, ``(n,)``.
 
     Dropping the largest keeps one occluded (or otherwise changed) quadrant
-    from dominating a particle's score.
+    from dominating a particle's score. Given per-quadrant ``reliability``
+    weights ``(4,)`` instead (:class:`QuadrantState`), the reliability-weighted
+    mean ``Σ r_k q_k² / Σ r_k`` of all four.
     """
     q2 = np.asarray(q, dtype=np.float64) ** 2
+    if reliability is not None:
+        r = np.asarray(reliability, dtype=np.float64)
+        return q2 @ (r / r.sum())
     k = q2.shape[-1]
     if k < 2:
         return q2.sum(axis=-1)
     return (q2.sum(axis=-1) - q2.max(axis=-1)) / (k - 1)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class QuadrantState:
+    """Online state of the quadrant term: references and reliabilities, replaced every frame.
+
+    Without it the model scores quadrants against the references observed at
+    the initial box and drops the worst (the default). With it (see
+    :func:`update_quadrant_state`), each quadrant's reference may follow the
+    target slowly, and its weight in the term is its *reliability*: the
+    inverse of its recent mismatch at the estimate (CSRT weighs its channels
+    by reliability in the same spirit), so a quadrant that changes with every
+    stride, or stays occluded, counts less than one that holds still.
+
+    Attributes
+    ----------
+    reference : ndarray, shape (4, 9, 9)
+    logdet : ndarray, shape (4,)
+    noise : ndarray, shape (4,)
+        Running mean of each quadrant's ``q_k²`` at the estimate.
+    """
+
+    reference: np.ndarray
+    logdet: np.ndarray
+    noise: np.ndarray
+
+    @property
+    def reliability(self) -> np.ndarray:
+        """``mean(noise) / noise_k``, clipped to [1/4, 4]: the quadrants' weights (their scale is irrelevant)."""
+        n = np.maximum(self.noise, 1e-12)
+        return np.clip(n.mean() / n, 0.25, 4.0)
+
+
+def update_quadrant_state(
+    state: QuadrantState, q_est: np.ndarray, Q_est: np.ndarray, rate: float, ref_rate: float = 0.0,
+    gate: float = np.inf,
+) -> QuadrantState:
+    """The state after an estimate whose quadrants ``Q_est`` (4, 9, 9) are at distances ``q_est`` (4,).
+
+    ``noise ← (1 − rate)·noise + rate·q_est²``. With ``ref_rate > 0``, each
+    reference whose ``q_k²`` is below ``gate · noise_k`` (a good match) takes a
+    log-Euclidean step of ``ref_rate`` towards ``Q_est[k]``.
+    """
+    q2 = np.asarray(q_est, dtype=np.float64) ** 2
+    noise = (1 - rate) * state.noise + rate * q2
+    ref, ld = state.reference, state.logdet
+    if ref_rate > 0:
+        good = q2 < gate * state.noise
+        if good.any():
+            from covviz.spd import expm, logm
+
+            new = expm((1 - ref_rate) * logm(ref[good]) + ref_rate * logm(np.asarray(Q_est)[good]))
+            ref = ref.copy()
+            ref[good] = new
+            ld = logdet(ref)
+    return QuadrantState(_frozen(ref), _frozen(ld), _frozen(noise))
 
 
 def box_to_pose(box, base_wh) -> np.ndarray:
@@ -101,6 +170,12 @@ class Observation:
         templates or quadrants).
     likelihood_distances : ndarray, shape (n,), or None
         ``d_eff``, what the likelihood weighs by (None without templates).
+    terms : dict of str to ndarray, shape (n,)
+        The likelihood's extra terms at each pose, unweighted, by name
+        (:meth:`ObservationModel.term_weights` holds their weights):
+        ``"quadrants"`` (:func:`quadrant_term`), ``"colour"``
+        (:func:`covviz.fgbg.colour_term`), those the model has. With them
+        ``d_eff² = d² + Σ_k weight_k · terms[k]``.
     """
 
     descriptors: np.ndarray
@@ -108,6 +183,7 @@ class Observation:
     distances: np.ndarray | None = None
     quadrant_distances: np.ndarray | None = None
     likelihood_distances: np.ndarray | None = None
+    terms: dict = field(default_factory=dict)
 
 
 def _frozen(a: np.ndarray | None) -> np.ndarray | None:
@@ -148,6 +224,12 @@ class ObservationModel:
         likelihood, without the quadrant term).
     quadrant_logdet : ndarray, shape (4,), or None
         Their log-determinants.
+    colour_weight : float
+        Weight of the foreground/background colour term
+        (:func:`covviz.fgbg.colour_term`) in ``d_eff²``; 0: no colour term.
+        Its online state (the histograms) is the tracker's
+        (:class:`covviz.fgbg.ColourModel`), passed in through
+        :meth:`colour_map`.
     jit : bool
         Observe with the compiled kernels (:mod:`covviz.kernels`) when they are
         available (``COVVIZ_NO_JIT=1`` or no numba: the numpy path, always).
@@ -168,6 +250,7 @@ class ObservationModel:
     quadrant_weight: float = 1.0
     quadrant_reference: np.ndarray | None = field(default=None, repr=False)
     quadrant_logdet: np.ndarray | None = field(default=None, repr=False)
+    colour_weight: float = 0.0
     jit: bool = True
 
     def __post_init__(self):
@@ -193,6 +276,7 @@ class ObservationModel:
         quadrants: bool = True,
         quadrant_weight: float = 1.0,
         likelihood_sigma: float = 0.5,
+        colour_weight: float = 0.0,
         jit: bool = True,
     ) -> ObservationModel:
         """The model of a tracker started on ``frame`` at ``box`` (``x, y, w, h``, 0-based pixels).
@@ -220,6 +304,7 @@ class ObservationModel:
             smooth_sigma=smooth_sigma,
             likelihood_sigma=likelihood_sigma,
             quadrant_weight=quadrant_weight,
+            colour_weight=colour_weight,
             jit=jit,
         )
         if quadrants:
@@ -243,6 +328,7 @@ class ObservationModel:
             quadrants=config.quadrants,
             quadrant_weight=config.quadrant_weight,
             likelihood_sigma=config.likelihood_sigma,
+            colour_weight=getattr(config, "colour_weight", 0.0),
             jit=getattr(config, "jit", True),
         )
 
@@ -253,6 +339,21 @@ class ObservationModel:
     def quadrants(self) -> bool:
         """Whether the likelihood has the quadrant term."""
         return self.quadrant_reference is not None
+
+    @property
+    def colour(self) -> bool:
+        """Whether the likelihood has the foreground/background colour term."""
+        return self.colour_weight > 0
+
+    @property
+    def term_weights(self) -> dict[str, float]:
+        """The weight of each extra term of ``d_eff²`` the model has, by name (see :class:`Observation`)."""
+        w = {}
+        if self.quadrants:
+            w["quadrants"] = self.quadrant_weight
+        if self.colour:
+            w["colour"] = self.colour_weight
+        return w
 
     @property
     def base_size(self) -> float:
@@ -268,6 +369,7 @@ class ObservationModel:
             f"{'gain-normalised' if self.gain_normalize else 'raw'} features, ε={self.eps:g}, "
             f"σ={self.likelihood_sigma:g}, "
             + (f"quadrant term (weight {self.quadrant_weight:g})" if self.quadrants else "the paper's likelihood")
+            + (f", colour term (weight {self.colour_weight:g})" if self.colour else "")
         )
 
     # ------------------------------------------------------------------ #
@@ -281,6 +383,16 @@ class ObservationModel:
         if self.smooth_sigma > 0:
             g = cv2.GaussianBlur(g, (0, 0), self.smooth_sigma)
         return g
+
+    def colour_map(self, frame: np.ndarray, state: fgbg.ColourModel | None) -> fgbg.ColourMap | None:
+        """The foreground probability of a (raw, colour) ``frame`` given the colour state; None without the term."""
+        if not self.colour or state is None:
+            return None
+        return fgbg.colour_map(frame, state)
+
+    def colour_terms(self, cmap: fgbg.ColourMap, poses) -> np.ndarray:
+        """The colour term (unweighted) of each pose's axis-aligned box (:func:`covviz.features.pose_to_box`), ``(n,)``."""
+        return fgbg.colour_term(cmap, pose_to_box(np.asarray(poses, dtype=np.float64).reshape(-1, 4), self.base_wh))
 
     def _sample_step(self):
         return self.step_xy if self.step > 1 else 1.0
@@ -298,15 +410,26 @@ class ObservationModel:
             return kernels.template_distances_fast(L, np.broadcast_to(C, L.shape))
         return distance_riemann_log(L, C)
 
-    def _quadrant_distances(self, Q: np.ndarray) -> np.ndarray:
-        if self.compiled:
-            return kernels.quadrant_distances_fast(Q, self.quadrant_reference, self.quadrant_logdet)
-        return distance_jbld(self.quadrant_reference, Q, logdet_a=self.quadrant_logdet)
+    def initial_quadrant_state(self) -> QuadrantState | None:
+        """The :class:`QuadrantState` of the initial box: its references, equal reliabilities; None without quadrants."""
+        if not self.quadrants:
+            return None
+        return QuadrantState(self.quadrant_reference, self.quadrant_logdet, _frozen(np.ones(4)))
 
-    def _chunk(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
+    def quadrant_distances(self, Q: np.ndarray, state: QuadrantState | None = None) -> np.ndarray:
+        """``sqrt(8·J)`` of quadrants ``Q`` (n, 4, 9, 9) against the references (the state's, if given), ``(n, 4)``."""
+        ref, ld = (self.quadrant_reference, self.quadrant_logdet) if state is None else (state.reference, state.logdet)
+        if self.compiled:
+            return kernels.quadrant_distances_fast(Q, ref, ld)
+        return distance_jbld(ref, Q, logdet_a=ld)
+
+    def _quadrant_distances(self, Q: np.ndarray) -> np.ndarray:
+        return self.quadrant_distances(Q)
+
+    def _chunk(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None, qstate=None):
         """One chunk: descriptors (and distances), with the seconds of its four stages."""
         if self.compiled:
-            return self._chunk_compiled(gray, poses, templates)
+            return self._chunk_compiled(gray, poses, templates, qstate)
         t0 = time.perf_counter()
         P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
         t1 = time.perf_counter()
@@ -321,11 +444,11 @@ class ObservationModel:
         if templates is not None:
             d = distance_riemann_log(templates, C)
             if Q is not None:
-                q = distance_jbld(self.quadrant_reference, Q, logdet_a=self.quadrant_logdet)
+                q = self.quadrant_distances(Q, qstate)
         t4 = time.perf_counter()
         return C, Q, d, q, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)
 
-    def _chunk_compiled(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
+    def _chunk_compiled(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None, qstate=None):
         """:meth:`_chunk` with the compiled kernels: warp, features and covariance in one (timed as ``features``)."""
         t0 = time.perf_counter()
         C, Q = kernels.warp_descriptors_fast(
@@ -337,7 +460,7 @@ class ObservationModel:
         if templates is not None:
             d = kernels.template_distances_fast(templates, C)
             if Q is not None:
-                q = kernels.quadrant_distances_fast(Q, self.quadrant_reference, self.quadrant_logdet)
+                q = self.quadrant_distances(Q, qstate)
         t2 = time.perf_counter()
         return C, Q, d, q, (0.0, t1 - t0, 0.0, t2 - t1)
 
@@ -349,6 +472,8 @@ class ObservationModel:
         executor=None,
         threads: int = 1,
         timings: dict | None = None,
+        colour: fgbg.ColourMap | None = None,
+        quadrant_state: QuadrantState | None = None,
     ) -> Observation:
         """Descriptors at ``poses`` of a prepared frame and, given templates, their distances.
 
@@ -368,6 +493,12 @@ class ObservationModel:
         timings : dict, optional
             Filled with the seconds of ``warp``, ``features``, ``covariance``
             and (with templates) ``distances``.
+        colour : ColourMap, optional
+            The frame's :meth:`colour_map`: with templates and a colour
+            weight, the colour term joins ``d_eff``.
+        quadrant_state : QuadrantState, optional
+            Online quadrant references and reliabilities; None: the initial
+            references, worst quadrant dropped.
 
         Returns
         -------
@@ -375,6 +506,9 @@ class ObservationModel:
         """
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
         n = len(poses)
+        t_colour = None
+        if templates is not None and colour is not None and self.colour:
+            t_colour = self.colour_terms(colour, poses)
         if templates is not None:
             L = np.asarray(templates, dtype=np.float64)
             if L.shape == (N_FEATURES, N_FEATURES):
@@ -387,11 +521,13 @@ class ObservationModel:
             return Observation(empty, np.zeros((0, 4, N_FEATURES, N_FEATURES)) if self.quadrants else None,
                                None if templates is None else np.zeros(0),
                                np.zeros((0, 4)) if (templates is not None and self.quadrants) else None,
-                               None if templates is None else np.zeros(0))
+                               None if templates is None else np.zeros(0),
+                               {} if templates is None else self.terms(np.zeros((0, 4)) if self.quadrants else None,
+                                                                       t_colour, quadrant_state))
         parts = [slice(i, min(i + OBSERVE_CHUNK, n)) for i in range(0, n, OBSERVE_CHUNK)]
 
         def work(sl):
-            return self._chunk(gray, poses[sl], None if templates is None else templates[sl])
+            return self._chunk(gray, poses[sl], None if templates is None else templates[sl], quadrant_state)
 
         if executor is None or len(parts) == 1:
             outs = [work(sl) for sl in parts]
@@ -411,8 +547,10 @@ class ObservationModel:
             timings["warp"], timings["features"], timings["covariance"] = st[:3]
             if templates is not None:
                 timings["distances"] = st[3]
-        d_eff = None if d is None else self.likelihood_distance(d, q)
-        return Observation(C, Q, d, q, d_eff)
+        if d is None:
+            return Observation(C, Q)
+        terms = self.terms(q, t_colour, quadrant_state)
+        return Observation(C, Q, d, q, self.likelihood_distance(d, terms=terms), terms)
 
     def quadrant_descriptors(self, gray: np.ndarray, poses) -> tuple[np.ndarray, np.ndarray]:
         """The whole region's and its four quadrants' descriptors at ``poses``, with or without the quadrant term.
@@ -436,11 +574,15 @@ class ObservationModel:
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
         return warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())[:, 1:-1, 1:-1]
 
-    def template_scores(self, gray: np.ndarray, pose, templates) -> np.ndarray:
+    def template_scores(
+        self, gray: np.ndarray, pose, templates, colour: fgbg.ColourMap | None = None,
+        quadrant_state: QuadrantState | None = None,
+    ) -> np.ndarray:
         """``d_eff`` of many log-space templates at one pose, ``(m,)``: what each would be weighed by there.
 
         One observation at ``pose``, then each template's distance to it (in
-        :data:`OBSERVE_CHUNK` batches) combined with that pose's quadrant term.
+        :data:`OBSERVE_CHUNK` batches) combined with that pose's quadrant term
+        (and, given the frame's ``colour`` map, its colour term).
         Equal to :meth:`likelihood_distances` with the pose repeated, without
         observing it ``m`` times (the diagnosis asks this at the truth and the
         estimate, for the whole template cloud).
@@ -452,26 +594,103 @@ class ObservationModel:
         d = np.concatenate(
             [self._template_distances(L[i : i + OBSERVE_CHUNK], C) for i in range(0, len(L), OBSERVE_CHUNK)]
         ) if len(L) else np.zeros(0)
-        q = None
+        q = t = None
         if self.quadrants:
-            q = np.broadcast_to(self._quadrant_distances(ob.quadrants), (len(L), 4))
-        return self.likelihood_distance(d, q)
+            q = np.broadcast_to(self.quadrant_distances(ob.quadrants, quadrant_state), (len(L), 4))
+        if colour is not None and self.colour:
+            t = np.broadcast_to(self.colour_terms(colour, pose), (len(L),))
+        return self.likelihood_distance(d, terms=self.terms(q, t, quadrant_state))
 
     def descriptors(self, gray: np.ndarray, poses, executor=None, threads: int = 1) -> np.ndarray:
         """Descriptors ``(n, 9, 9)`` at ``poses`` of a prepared frame."""
         return self.observe(gray, poses, executor=executor, threads=threads).descriptors
 
-    def likelihood_distances(self, gray: np.ndarray, poses, templates, executor=None, threads: int = 1):
+    def likelihood_distances(
+        self, gray: np.ndarray, poses, templates, executor=None, threads: int = 1, colour: fgbg.ColourMap | None = None,
+        quadrant_state: QuadrantState | None = None,
+    ):
         """``d_eff`` at ``poses`` of a prepared frame for log-space templates (one per pose, or one), ``(n,)``.
 
         What :class:`covviz.trackers.manifold.ManifoldTracker` weighs a
-        particle with that template at that pose by.
+        particle with that template at that pose by (given the frame's
+        ``colour`` map when the model has the colour term).
         """
-        return self.observe(gray, poses, templates, executor=executor, threads=threads).likelihood_distances
+        return self.observe(
+            gray, poses, templates, executor=executor, threads=threads, colour=colour, quadrant_state=quadrant_state
+        ).likelihood_distances
 
-    def likelihood_distance(self, d: np.ndarray, q: np.ndarray | None) -> np.ndarray:
-        """``d_eff = sqrt(d² + quadrant_weight · quadrant_term(q))``, or ``d`` without quadrants."""
-        return d if q is None else np.sqrt(d * d + self.quadrant_weight * quadrant_term(q))
+    def pose_search(
+        self,
+        gray: np.ndarray,
+        pose,
+        template: np.ndarray,
+        scales=(),
+        rotations=(),
+        colour: fgbg.ColourMap | None = None,
+        quadrant_state: QuadrantState | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``d_eff`` of one template at ``pose`` rescaled and rotated: what the likelihood says of each.
+
+        First the scales (factors of ``pose``'s scale, at its rotation), then
+        the rotations (offsets, radians) at the best of those scales: a
+        scale pyramid and a rotation fan at one centre, as a correlation
+        filter searches its scale after locating the centre (CSRT, DSST).
+
+        Parameters
+        ----------
+        gray : ndarray, shape (H, W)
+            A frame from :meth:`prepare`.
+        pose : ndarray, shape (4,)
+        template : ndarray, shape (9, 9)
+            Log-space template.
+        scales, rotations : sequence of float
+            Factors (include 1) and offsets (include 0).
+        colour : ColourMap, optional
+
+        Returns
+        -------
+        scale_poses : ndarray, shape (len(scales), 4)
+        scale_d : ndarray, shape (len(scales),)
+        rot_poses : ndarray, shape (len(rotations), 4)
+        rot_d : ndarray, shape (len(rotations),)
+        """
+        pose = np.asarray(pose, dtype=np.float64).reshape(4)
+        sp = np.tile(pose, (len(scales), 1))
+        sp[:, 2] *= np.asarray(scales, dtype=np.float64)
+        kw = {"colour": colour, "quadrant_state": quadrant_state}
+        sd = self.observe(gray, sp, template, **kw).likelihood_distances if len(sp) else np.zeros(0)
+        best = sp[int(np.argmin(sd))] if len(sp) else pose
+        rp = np.tile(best, (len(rotations), 1))
+        rp[:, 3] += np.asarray(rotations, dtype=np.float64)
+        rd = self.observe(gray, rp, template, **kw).likelihood_distances if len(rp) else np.zeros(0)
+        return sp, sd, rp, rd
+
+    def terms(
+        self, q: np.ndarray | None, colour: np.ndarray | None = None, quadrant_state: QuadrantState | None = None
+    ) -> dict[str, np.ndarray]:
+        """The unweighted extra terms of ``d_eff²`` by name, from the quadrant distances and the colour term."""
+        out = {}
+        if q is not None:
+            out["quadrants"] = quadrant_term(q, None if quadrant_state is None else quadrant_state.reliability)
+        if colour is not None:
+            out["colour"] = np.asarray(colour, dtype=np.float64)
+        return out
+
+    def likelihood_distance(self, d: np.ndarray, q: np.ndarray | None = None, terms: dict | None = None) -> np.ndarray:
+        """``d_eff = sqrt(d² + Σ_k weight_k · term_k)``; ``d`` itself without terms.
+
+        Give the quadrant distances ``q`` (then ``d_eff² = d² + quadrant_weight ·
+        quadrant_term(q)``) or the named ``terms`` of :meth:`terms`.
+        """
+        if terms is None:
+            terms = self.terms(q)
+        if not terms:
+            return d
+        w = self.term_weights
+        acc = d * d
+        for name, t in terms.items():
+            acc = acc + w[name] * t
+        return np.sqrt(acc)
 
     def log_likelihood(self, d_eff: np.ndarray) -> np.ndarray:
         """``-d_eff² / 2σ²``, the log-likelihood up to a constant (:func:`covviz.particles.log_likelihood`)."""

@@ -42,9 +42,21 @@ from typing import Self
 
 import numpy as np
 
-from covviz.dynamics import POSE, SCALE, VX, VY, KinematicModel, X, Y, propagate_kinematics, template_walk
+from covviz import fgbg
+from covviz.dynamics import (
+    POSE,
+    SCALE,
+    THETA,
+    VX,
+    VY,
+    KinematicModel,
+    X,
+    Y,
+    propagate_kinematics,
+    template_walk,
+)
 from covviz.features import N_FEATURES, pose_corners, pose_to_box
-from covviz.observation import ObservationModel
+from covviz.observation import ObservationModel, QuadrantState, update_quadrant_state
 from covviz.particles import (
     ParticleSet,
     effective_sample_size,
@@ -108,6 +120,50 @@ class ManifoldConfig:
         docstring). Not in the paper; ``False`` gives the paper's likelihood.
     quadrant_weight : float
         Weight of the quadrant term in ``d²``.
+    colour_weight : float
+        Weight of the foreground/background colour term in ``d²``
+        (:mod:`covviz.fgbg`; not in the paper): how much of the box's colour
+        is the target's rather than its surroundings'. 0 turns it off.
+    colour_rate : float
+        Learning rate of the colour histograms (Staple's 0.04).
+    quadrant_reliability : float
+        Rate of the running mean of each quadrant's mismatch at the estimate;
+        > 0 weighs the quadrants by their reliability (the inverse of that
+        mean) instead of dropping the worst
+        (:class:`~covviz.observation.QuadrantState`). 0: drop the worst.
+    quadrant_ref_rate : float
+        With reliabilities, each quadrant reference takes a log-Euclidean
+        step of this size towards the estimate's quadrant when it matches
+        well (``q_k² < quadrant_ref_gate · its running mean``). 0: fixed.
+    quadrant_ref_gate : float
+    anchor_pull : float
+        Each frame, every particle's template moves this fraction of the way
+        to the anchor before its random step (:func:`covviz.dynamics.template_walk`);
+        0: the paper's free walk.
+    anchor_rate : float
+        The anchor (a log-space template: the initial one at first) takes a
+        step of this size towards the estimate's template after each frame
+        whose match is good (``d² < anchor_gate ·`` its running mean), as
+        IVT's mean forgets old observations.
+    anchor_gate : float
+    scale_steps : int
+        After the MMSE estimate, score ``2·scale_steps + 1`` scales
+        ``scale_step**k`` at the estimated centre with the estimate's template
+        (:meth:`~covviz.observation.ObservationModel.pose_search`), as CSRT
+        searches its scale pyramid once the centre is found; 0: no search.
+    scale_step : float
+        Ratio of neighbouring scales of the search (CSRT: 1.02).
+    rotation_steps : int
+        Then ``2·rotation_steps`` rotations ``± k·rotation_step`` at the best
+        scale; 0: none.
+    rotation_step : float
+        Radians.
+    search_blend : float
+        The estimate moves this fraction of the way (in log-scale and angle)
+        to the best candidate, interpolated between the grid's steps.
+    search_pull : float
+        And every particle's scale and angle move by this fraction of the
+        estimate's move (1: the whole cloud follows).
     jit : bool
         Observe with the compiled kernels (:mod:`covviz.kernels`) when numba is
         installed and ``COVVIZ_NO_JIT`` is not set; ``False``: the numpy path.
@@ -128,6 +184,20 @@ class ManifoldConfig:
     gain_normalize: bool = True
     quadrants: bool = True
     quadrant_weight: float = 1.0
+    colour_weight: float = 0.0
+    colour_rate: float = 0.04
+    quadrant_reliability: float = 0.0
+    quadrant_ref_rate: float = 0.0
+    quadrant_ref_gate: float = 1.0
+    anchor_pull: float = 0.0
+    anchor_rate: float = 0.0
+    anchor_gate: float = 1.0
+    scale_steps: int = 0
+    scale_step: float = 1.02
+    rotation_steps: int = 0
+    rotation_step: float = 0.03
+    search_blend: float = 1.0
+    search_pull: float = 1.0
     jit: bool = True
 
     def __post_init__(self):
@@ -138,6 +208,8 @@ class ManifoldConfig:
             "smooth_sigma",
             "resample_threshold",
             "quadrant_weight",
+            "colour_weight",
+            "colour_rate",
         ):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not np.isfinite(v):
@@ -165,6 +237,10 @@ class ManifoldConfig:
             raise ValueError(f"resample_threshold must be in [0, 1], got {self.resample_threshold}")
         if self.quadrant_weight < 0:
             raise ValueError(f"quadrant_weight must be non-negative, got {self.quadrant_weight}")
+        if self.colour_weight < 0:
+            raise ValueError(f"colour_weight must be non-negative, got {self.colour_weight}")
+        if not 0 <= self.colour_rate <= 1:
+            raise ValueError(f"colour_rate must be in [0, 1], got {self.colour_rate}")
         if self.quadrants and self.patch_size % 2:
             raise ValueError(f"quadrants need an even patch_size, got {self.patch_size}")
         if self.smooth_sigma < 0:
@@ -252,6 +328,9 @@ class ManifoldTracker:
         self.model: ObservationModel | None = None
         self.particles: ParticleSet | None = None
         self.initial_template: np.ndarray | None = None
+        self.colour: fgbg.ColourModel | None = None
+        self.quadrant_state: QuadrantState | None = None
+        self.anchor: AnchorState | None = None
         self.last_record: FrameRecord | None = None
         self._sigma = self.config.sigma_matrix
         self._index = 0
@@ -299,6 +378,9 @@ class ManifoldTracker:
         states = np.zeros((n, 6))
         states[:, X], states[:, Y], states[:, SCALE] = pose[0, 0], pose[0, 1], 1.0
         self.initial_template = L0
+        self.colour = fgbg.init_colour_model(frame, b) if model.colour else None
+        self.quadrant_state = model.initial_quadrant_state() if cfg.quadrant_reliability > 0 else None
+        self.anchor = AnchorState(_ro(L0), 1.0) if cfg.anchor_pull > 0 else None
         self.particles = ParticleSet(states, np.broadcast_to(L0, (n, *L0.shape)).copy(), np.full(n, -np.log(n)))
         self._index = 0
         self.last_record = FrameRecord(
@@ -311,7 +393,33 @@ class ManifoldTracker:
             estimate_descriptor=C0[0],
             timings={"total": time.perf_counter() - t0},
             model=model,
+            extras={"colour_state": self.colour, "quadrant_state": self.quadrant_state, "anchor": self.anchor},
         )
+
+    def _search(self, gray, est_pose, est_template, states, cmap, qstate):
+        """Scale, then rotation, search at the estimate; the estimate and the particles move towards the best."""
+        cfg, model = self.config, self.model
+        ks = np.arange(-cfg.scale_steps, cfg.scale_steps + 1)
+        kr = np.arange(-cfg.rotation_steps, cfg.rotation_steps + 1)
+        sp, sd, rp, rd = model.pose_search(
+            gray, est_pose, est_template, cfg.scale_step ** ks.astype(float), kr * cfg.rotation_step, colour=cmap,
+            quadrant_state=qstate,
+        )
+        dlog = _parabolic_step(sd) * np.log(cfg.scale_step) if len(sd) > 1 else 0.0
+        dtheta = _parabolic_step(rd) * cfg.rotation_step if len(rd) > 1 else 0.0
+        new = est_pose.copy()
+        new[2] = est_pose[2] * np.exp(cfg.search_blend * dlog)
+        new[3] = est_pose[3] + cfg.search_blend * dtheta
+        km = cfg.kinematics
+        states = states.copy()
+        states[:, SCALE] = np.clip(
+            states[:, SCALE] * np.exp(cfg.search_pull * cfg.search_blend * dlog), *km.scale_range
+        )
+        states[:, THETA] = np.clip(
+            states[:, THETA] + cfg.search_pull * cfg.search_blend * dtheta, -km.max_rotation, km.max_rotation
+        )
+        return new, states, {"scale_poses": sp, "scale_distances": sd, "rotation_poses": rp,
+                             "rotation_distances": rd}
 
     def update(self, frame: np.ndarray) -> np.ndarray:
         """Track into ``frame``; return the estimated box ``x, y, w, h``."""
@@ -327,14 +435,19 @@ class ManifoldTracker:
 
         # 1. propagate kinematics and templates
         states, modes = propagate_kinematics(ps.states, cfg.kinematics, model.base_size, self.rng)
-        templates = template_walk(ps.templates, self._sigma, self.rng)
+        anchor = self.anchor
+        templates = template_walk(
+            ps.templates, self._sigma, self.rng, None if anchor is None else anchor.template, cfg.anchor_pull
+        )
         t1 = time.perf_counter()
         tm["propagate"] = t1 - t_start
 
         # 2. observe descriptors, and each template's distance, at every particle's pose
         gray = model.prepare(frame)
         poses = states[:, POSE]
-        ob = self._observe(gray, poses, templates, tm)
+        colour_state, qstate = self.colour, self.quadrant_state
+        cmap = model.colour_map(frame, colour_state)
+        ob = model.observe(gray, poses, templates, self._pool, cfg.threads, tm, colour=cmap, quadrant_state=qstate)
 
         # 3. weigh
         t2 = time.perf_counter()
@@ -347,8 +460,28 @@ class ManifoldTracker:
         est_state = mmse(states, lw)
         est_pose = est_state[POSE]
         est_template = mmse(templates, lw)
-        est_desc = self._observe(gray, est_pose[None]).descriptors[0]
+        search = None
+        if cfg.scale_steps > 0 or cfg.rotation_steps > 0:
+            est_pose, states, search = self._search(gray, est_pose, est_template, states, cmap, qstate)
+        est_ob = self._observe(gray, est_pose[None], None if anchor is None else est_template)
+        est_desc = est_ob.descriptors[0]
+        if anchor is not None:
+            d2 = float(est_ob.distances[0] ** 2)
+            good = d2 < cfg.anchor_gate * anchor.noise
+            self.anchor = AnchorState(
+                _ro((1 - cfg.anchor_rate) * anchor.template + cfg.anchor_rate * est_template) if good
+                else anchor.template,
+                0.95 * anchor.noise + 0.05 * d2,
+            )
+        if qstate is not None:
+            q_est = model.quadrant_distances(est_ob.quadrants, qstate)[0]
+            self.quadrant_state = update_quadrant_state(
+                qstate, q_est, est_ob.quadrants[0], cfg.quadrant_reliability, cfg.quadrant_ref_rate,
+                cfg.quadrant_ref_gate,
+            )
         box = pose_to_box(est_pose[None], model.base_wh)[0]
+        if colour_state is not None:
+            self.colour = fgbg.update_colour_model(colour_state, frame, box, cfg.colour_rate)
         t4 = time.perf_counter()
         tm["estimate"] = t4 - t3
 
@@ -388,9 +521,56 @@ class ManifoldTracker:
                 "velocity": est_state[[VX, VY]],
                 "quadrant_distances": ob.quadrant_distances,
                 "likelihood_distances": ob.likelihood_distances,
+                "terms": ob.terms,
+                "term_weights": model.term_weights,
+                "colour_state": colour_state,
+                "quadrant_state": qstate,
+                "anchor": anchor,
+                "pose_search": search,
             },
         )
         return box
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class AnchorState:
+    """The anchored template walk's online state (see ``ManifoldConfig.anchor_pull``).
+
+    Attributes
+    ----------
+    template : ndarray, shape (9, 9)
+        The anchor, log space: the initial template, then a running
+        log-Euclidean mean of it and the estimates' templates that matched well.
+    noise : float
+        Running mean (rate 0.05) of ``d²`` of the estimate's template at the
+        estimate: a frame matches well when its ``d²`` is below ``anchor_gate``
+        times this.
+    """
+
+    template: np.ndarray
+    noise: float
+
+
+def _ro(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=np.float64)
+    a.flags.writeable = False
+    return a
+
+
+def _parabolic_step(d: np.ndarray) -> float:
+    """Offset (in grid steps, from the centre of the odd-length grid ``d``) of the minimum of ``d²``.
+
+    The best grid point, refined by the parabola through it and its two
+    neighbours (when it has both and the parabola opens upwards).
+    """
+    c = np.asarray(d, dtype=np.float64) ** 2
+    j = int(np.argmin(c))
+    off = 0.0
+    if 0 < j < len(c) - 1:
+        den = c[j - 1] - 2 * c[j] + c[j + 1]
+        if den > 0:
+            off = float(np.clip(0.5 * (c[j - 1] - c[j + 1]) / den, -0.5, 0.5))
+    return j - (len(c) - 1) / 2 + off
 
 
 def make(n_particles: int | None = None, rng=None) -> ManifoldTracker:
