@@ -34,6 +34,7 @@ __all__ = [
     "FEATURE_NAMES",
     "FEATURE_SCALE",
     "N_FEATURES",
+    "normalize_gradients",
     "patch_features",
     "pose_corners",
     "pose_to_box",
@@ -281,6 +282,28 @@ def patch_features(
     F[1] = (halves[[0, 0, 1, 1], :, None] * FEATURE_SCALE[1])[None]
     _fill_features(F.reshape(N_FEATURES, 4 * n, h, h), Pq.reshape(4 * n, h + 2, h + 2), np.repeat(mean, 4, axis=0))
     return F.reshape(N_FEATURES, n, 4, h * h).transpose(1, 2, 0, 3)
+
+
+def normalize_gradients(F: np.ndarray) -> np.ndarray:
+    """Features with their derivatives divided by the patch's mean: ``|Ix|, |Iy|, |grad I|`` by the mean
+    ``|grad I|``, ``|Ixx|, |Iyy|`` by their mean (a new array).
+
+    ``F`` is :func:`patch_features`' output, ``(n, 9, P)`` or, by quadrant,
+    ``(n, 4, 9, P)`` (the means are then over the whole patch). The
+    magnitude of a derivative depends on how finely the region is sampled:
+    a target that shrinks to half its size is warped from half the pixels,
+    so its edges span twice as many patch samples and its derivatives per
+    sample halve, while a box grown around it keeps sharper ones. Dividing by
+    the patch's own mean makes the descriptor invariant to that (and to the
+    contrast), keeping the derivatives' spatial layout and correlations.
+    """
+    F = np.array(F, dtype=np.float32, copy=True)
+    G = F if F.ndim == 4 else F[:, None]  # (n, regions, 9, P), a view
+    g1 = np.maximum(G[:, :, 5].astype(np.float64).mean(axis=(1, 2)), 1e-6)
+    g2 = np.maximum(G[:, :, 7:9].astype(np.float64).mean(axis=(1, 2, 3)), 1e-6)
+    G[:, :, 3:6] /= g1[:, None, None, None].astype(np.float32)
+    G[:, :, 7:9] /= g2[:, None, None, None].astype(np.float32)
+    return F
 
 
 def _fill_features(F: np.ndarray, P: np.ndarray, mean: np.ndarray) -> None:

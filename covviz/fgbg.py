@@ -59,8 +59,8 @@ GREY_BINS = 32
 RING_PAD = 0.5
 #: The window the term is computed over: the previous estimate grown to this multiple of its size.
 WINDOW_FACTOR = 4.0
-#: Prior count of every bin (in pixels of each class), so unseen colours get P = ½.
-PRIOR = 1e-3
+#: Prior density added to both classes in every bin, so a colour neither has seen gets P = ½.
+PRIOR = 1e-6
 
 
 def _is_grey(frame: np.ndarray) -> bool:
@@ -105,7 +105,8 @@ class ColourModel:
     Attributes
     ----------
     fg, bg : ndarray, shape (bins,)
-        Foreground and background colour densities (each sums to 1).
+        Foreground and background colour densities (each sums to 1, or is 0
+        when its region was empty).
     box : ndarray, shape (4,)
         The estimate they were last updated at, ``x, y, w, h`` pixels: the
         window of the next frame's term is centred on it.
@@ -147,8 +148,7 @@ def _box_and_ring_histograms(bins: np.ndarray, box, n_bins: int):
 
 
 def _density(counts: np.ndarray) -> np.ndarray:
-    c = counts + PRIOR
-    return c / c.sum()
+    return counts / max(float(counts.sum()), 1.0)
 
 
 def init_colour_model(frame: np.ndarray, box) -> ColourModel:
@@ -202,7 +202,7 @@ def colour_map(frame: np.ndarray, state: ColourModel) -> ColourMap:
     X0, Y0 = int(np.clip(np.floor(cx - half), 0, W - 1)), int(np.clip(np.floor(cy - half), 0, H - 1))
     X1, Y1 = int(np.clip(np.ceil(cx + half), X0 + 1, W)), int(np.clip(np.ceil(cy + half), Y0 + 1, H))
     bins = colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], state.grey)
-    lut = state.fg / (state.fg + state.bg) - 0.5
+    lut = (state.fg + PRIOR) / (state.fg + state.bg + 2 * PRIOR) - 0.5
     P = lut[bins]
     integral = cv2.integral(P.astype(np.float64), sdepth=cv2.CV_64F)
     return ColourMap((X0, Y0), integral, float(np.maximum(P, 0.0).sum()), max(w * h, 1.0))

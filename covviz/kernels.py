@@ -462,12 +462,15 @@ def _regularize(C, eps):
 
 
 @_jit(_FM_FEAT)
-def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q):
+def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q, grad_normalize=False):
     """Descriptors of one bordered patch ``B`` (S+2, S+2) float32.
 
     Writes ``C`` (9, 9) and, with ``quadrants``, ``Q`` (4, 9, 9). ``F``
     (9, pixels of a quadrant) float32, ``mq`` (4, 9), ``Mq`` (4, 9, 9), ``r``
-    (9,): scratch.
+    (9,): scratch. With ``grad_normalize``, the first-derivative features
+    are divided by the patch's mean ``|grad I|`` and the second derivatives
+    by their mean, as a congruence of the moments before regularisation (see
+    :func:`grad_scales`).
     """
     g = B.shape[0]
     S = g - 2
@@ -508,17 +511,29 @@ def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q)
             v = acc / (tot - 1)
             C[a, b] = v
             C[b, a] = v
+    g1 = 1.0
+    g2 = 1.0
+    if grad_normalize:
+        g1 = 1.0 / max(r[5], 1e-6)
+        g2 = 1.0 / max(0.5 * (r[7] + r[8]), 1e-6)
+        for a in range(d):
+            ka = g1 if (a >= 3 and a <= 5) else (g2 if a >= 7 else 1.0)
+            for b in range(d):
+                kb = g1 if (b >= 3 and b <= 5) else (g2 if b >= 7 else 1.0)
+                C[a, b] *= ka * kb
     _regularize(C, eps)
     if quadrants:
         for k in range(4):
             for a in range(d):
+                ka = g1 if (a >= 3 and a <= 5) else (g2 if a >= 7 else 1.0)
                 for b in range(d):
-                    Q[k, a, b] = Mq[k, a, b] / (N - 1)
+                    kb = g1 if (b >= 3 and b <= 5) else (g2 if b >= 7 else 1.0)
+                    Q[k, a, b] = Mq[k, a, b] / (N - 1) * (ka * kb)
             _regularize(Q[k], eps)
 
 
 @_jit(_FM_FEAT, entry=True)
-def _descriptors_from_patches(P, u, eps, gain_normalize, quadrants, C, Q):
+def _descriptors_from_patches(P, u, eps, gain_normalize, quadrants, C, Q, grad_normalize):
     n, g, _ = P.shape
     S = g - 2
     F = np.empty((9, S * S if S % 2 else (S // 2) ** 2), dtype=np.float32)
@@ -526,11 +541,12 @@ def _descriptors_from_patches(P, u, eps, gain_normalize, quadrants, C, Q):
     Mq = np.empty((4, 9, 9))
     r = np.empty(9)
     for i in range(n):
-        _patch_descriptors(P[i], u, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0])
+        _patch_descriptors(P[i], u, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0],
+                           grad_normalize)
 
 
 @_jit(_FM_FEAT, entry=True)
-def _descriptors_from_frame(gray, A, q, u, eps, gain_normalize, quadrants, C, Q):
+def _descriptors_from_frame(gray, A, q, u, eps, gain_normalize, quadrants, C, Q, grad_normalize):
     n = A.shape[0]
     g = q.shape[0]
     S = g - 2
@@ -548,7 +564,8 @@ def _descriptors_from_frame(gray, A, q, u, eps, gain_normalize, quadrants, C, Q)
     be = np.empty(g, dtype=np.float32)
     for i in range(n):
         _warp_patch(flat, H, W, A[i], q, B, idx, dx, dy, al, be)
-        _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0])
+        _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0],
+                           grad_normalize)
 
 
 def _coordinates(S: int) -> np.ndarray:
@@ -562,7 +579,8 @@ def _outputs(n: int, quadrants: bool):
     return C, Q
 
 
-def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants: bool = True):
+def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants: bool = True,
+                     grad_normalize: bool = False):
     """Descriptors of warped patches, as the numpy path computes them.
 
     Equal (within the tolerances of ``tests/test_kernels.py``) to
@@ -598,7 +616,8 @@ def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants
     if quadrants and S % 2:
         raise ValueError(f"quadrants need an even patch side, got {S}")
     C, Q = _outputs(len(P), quadrants)
-    _descriptors_from_patches(P, _coordinates(S), float(eps), bool(gain_normalize), bool(quadrants), C, Q)
+    _descriptors_from_patches(P, _coordinates(S), float(eps), bool(gain_normalize), bool(quadrants), C, Q,
+                              bool(grad_normalize))
     return C, (Q if quadrants else None)
 
 
@@ -619,7 +638,7 @@ def _affine(poses, base_wh, step) -> np.ndarray:
 
 def warp_descriptors_fast(
     gray, poses, base_wh, size: int = 32, step=1.0, eps: float = 1e-3, gain_normalize: bool = True,
-    quadrants: bool = True,
+    quadrants: bool = True, grad_normalize: bool = False,
 ):
     """Descriptors at ``poses`` straight from the frame: warp, features and moments fused.
 
@@ -655,7 +674,8 @@ def warp_descriptors_fast(
         raise ValueError("poses, base_wh or step contain NaN or inf")
     q = (np.arange(-1, size + 1, dtype=np.float64) + 0.5) / size - 0.5  # features._unit_grid's coordinates
     C, Q = _outputs(len(A), quadrants)
-    _descriptors_from_frame(g32, A, q, _coordinates(size), float(eps), bool(gain_normalize), bool(quadrants), C, Q)
+    _descriptors_from_frame(g32, A, q, _coordinates(size), float(eps), bool(gain_normalize), bool(quadrants), C, Q,
+                            bool(grad_normalize))
     return C, (Q if quadrants else None)
 
 

@@ -45,7 +45,7 @@ import numpy as np
 
 from covviz import fgbg, kernels
 from covviz.descriptor import covariance, quadrant_covariances
-from covviz.features import N_FEATURES, patch_features, pose_to_box, warp_patches
+from covviz.features import N_FEATURES, normalize_gradients, patch_features, pose_to_box, warp_patches
 from covviz.particles import log_likelihood
 from covviz.spd import distance_jbld, distance_riemann_log, logdet
 from covviz.trackers.base import check_init_box, to_gray
@@ -214,6 +214,10 @@ class ObservationModel:
     eps : float
         Descriptor regulariser.
     gain_normalize : bool
+    grad_normalize : bool
+        Divide the derivative features by the patch's mean derivative
+        (:func:`covviz.features.normalize_gradients`): descriptors that do
+        not depend on how finely a region is sampled.
     smooth_sigma : float
         Gaussian smoothing of the (downsampled) frame, pixels; 0: none.
     likelihood_sigma : float
@@ -245,12 +249,16 @@ class ObservationModel:
     patch_size: int = 32
     eps: float = 1e-3
     gain_normalize: bool = True
+    grad_normalize: bool = False
     smooth_sigma: float = 0.0
     likelihood_sigma: float = 0.5
     quadrant_weight: float = 1.0
     quadrant_reference: np.ndarray | None = field(default=None, repr=False)
     quadrant_logdet: np.ndarray | None = field(default=None, repr=False)
     colour_weight: float = 0.0
+    context_weight: float = 0.0
+    context_reference: np.ndarray | None = field(default=None, repr=False)
+    context_logdet: np.ndarray | None = field(default=None, repr=False)
     jit: bool = True
 
     def __post_init__(self):
@@ -258,6 +266,8 @@ class ObservationModel:
         object.__setattr__(self, "step_xy", (float(self.step_xy[0]), float(self.step_xy[1])))
         object.__setattr__(self, "quadrant_reference", _frozen(self.quadrant_reference))
         object.__setattr__(self, "quadrant_logdet", _frozen(self.quadrant_logdet))
+        object.__setattr__(self, "context_reference", _frozen(self.context_reference))
+        object.__setattr__(self, "context_logdet", _frozen(self.context_logdet))
         if (self.quadrant_reference is None) != (self.quadrant_logdet is None):
             raise ValueError("quadrant_reference and quadrant_logdet come together")
 
@@ -271,12 +281,15 @@ class ObservationModel:
         patch_size: int = 32,
         eps: float = 1e-3,
         gain_normalize: bool = True,
+        grad_normalize: bool = False,
         smooth_sigma: float = 0.0,
         antialias: bool = True,
         quadrants: bool = True,
         quadrant_weight: float = 1.0,
         likelihood_sigma: float = 0.5,
         colour_weight: float = 0.0,
+        context_weight: float = 0.0,
+        context_scale: float = 1.25,
         jit: bool = True,
     ) -> ObservationModel:
         """The model of a tracker started on ``frame`` at ``box`` (``x, y, w, h``, 0-based pixels).
@@ -301,6 +314,7 @@ class ObservationModel:
             patch_size=patch_size,
             eps=eps,
             gain_normalize=gain_normalize,
+            grad_normalize=grad_normalize,
             smooth_sigma=smooth_sigma,
             likelihood_sigma=likelihood_sigma,
             quadrant_weight=quadrant_weight,
@@ -310,8 +324,13 @@ class ObservationModel:
         if quadrants:
             if patch_size % 2:
                 raise ValueError(f"quadrants need an even patch_size, got {patch_size}")
-            Q0 = model._observe_quadrants(model.prepare(frame), np.array([[x + w / 2, y + h / 2, 1.0, 0.0]]))[0]
-            model = cls(**{**model._fields(), "quadrant_reference": Q0, "quadrant_logdet": logdet(Q0)})
+            g0 = model.prepare(frame)
+            Q0 = model._observe_quadrants(g0, np.array([[x + w / 2, y + h / 2, 1.0, 0.0]]))[0]
+            extra = {}
+            if context_weight > 0:
+                Qc = model._observe_quadrants(g0, np.array([[x + w / 2, y + h / 2, context_scale, 0.0]]))[0]
+                extra = {"context_reference": Qc, "context_logdet": logdet(Qc), "context_weight": context_weight}
+            model = cls(**{**model._fields(), "quadrant_reference": Q0, "quadrant_logdet": logdet(Q0), **extra})
         return model
 
     @classmethod
@@ -323,12 +342,15 @@ class ObservationModel:
             patch_size=config.patch_size,
             eps=config.eps,
             gain_normalize=config.gain_normalize,
+            grad_normalize=getattr(config, "grad_normalize", False),
             smooth_sigma=config.smooth_sigma,
             antialias=config.antialias,
             quadrants=config.quadrants,
             quadrant_weight=config.quadrant_weight,
             likelihood_sigma=config.likelihood_sigma,
             colour_weight=getattr(config, "colour_weight", 0.0),
+            context_weight=getattr(config, "context_weight", 0.0),
+            context_scale=getattr(config, "context_scale", 1.25),
             jit=getattr(config, "jit", True),
         )
 
@@ -353,7 +375,29 @@ class ObservationModel:
             w["quadrants"] = self.quadrant_weight
         if self.colour:
             w["colour"] = self.colour_weight
+        if self.context:
+            w["context"] = self.context_weight
         return w
+
+    @property
+    def context(self) -> bool:
+        """Whether the likelihood has the context term (quadrants nearer the initial box's surroundings)."""
+        return self.context_reference is not None and self.context_weight > 0
+
+    def context_terms(self, Q: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """``max(0, mean_k (q_k² − c_k²))`` per pose, ``(n,)``: how much more each pose's quadrants ``Q``
+        resemble those of the initial box grown by ``context_scale`` (``c_k``) than the references
+        (``q_k``, the quadrant distances).
+
+        Positive when a box has taken in the target's surroundings: the
+        quadrant term alone barely rises as a box grows past the target (its
+        quadrants keep the target's part), this one does.
+        """
+        if self.compiled:
+            c = kernels.quadrant_distances_fast(Q, self.context_reference, self.context_logdet)
+        else:
+            c = distance_jbld(self.context_reference, Q, logdet_a=self.context_logdet)
+        return np.maximum(np.mean(np.asarray(q) ** 2 - c**2, axis=-1), 0.0)
 
     @property
     def base_size(self) -> float:
@@ -366,7 +410,8 @@ class ObservationModel:
         aa = f"frame downsampled ×{self.step_xy[0]:.2f}×{self.step_xy[1]:.2f}" if self.step > 1 else "full resolution"
         return (
             f"{self.patch_size}×{self.patch_size} patches of a {w:.0f}×{h:.0f} region at scale 1, {aa}, "
-            f"{'gain-normalised' if self.gain_normalize else 'raw'} features, ε={self.eps:g}, "
+            f"{'gain-normalised' if self.gain_normalize else 'raw'} features"
+            f"{' (derivatives normalised)' if self.grad_normalize else ''}, ε={self.eps:g}, "
             f"σ={self.likelihood_sigma:g}, "
             + (f"quadrant term (weight {self.quadrant_weight:g})" if self.quadrants else "the paper's likelihood")
             + (f", colour term (weight {self.colour_weight:g})" if self.colour else "")
@@ -434,6 +479,8 @@ class ObservationModel:
         P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
         t1 = time.perf_counter()
         F = patch_features(P, gain_normalize=self.gain_normalize, quadrants=self.quadrants)
+        if self.grad_normalize:
+            F = normalize_gradients(F)
         t2 = time.perf_counter()
         if self.quadrants:
             C, Q = quadrant_covariances(F, self.eps)
@@ -453,7 +500,7 @@ class ObservationModel:
         t0 = time.perf_counter()
         C, Q = kernels.warp_descriptors_fast(
             gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize,
-            self.quadrants,
+            self.quadrants, self.grad_normalize,
         )
         t1 = time.perf_counter()
         d = q = None
@@ -523,7 +570,8 @@ class ObservationModel:
                                np.zeros((0, 4)) if (templates is not None and self.quadrants) else None,
                                None if templates is None else np.zeros(0),
                                {} if templates is None else self.terms(np.zeros((0, 4)) if self.quadrants else None,
-                                                                       t_colour, quadrant_state))
+                                                                       t_colour, quadrant_state,
+                                                                       np.zeros(0) if self.context else None))
         parts = [slice(i, min(i + OBSERVE_CHUNK, n)) for i in range(0, n, OBSERVE_CHUNK)]
 
         def work(sl):
@@ -549,7 +597,8 @@ class ObservationModel:
                 timings["distances"] = st[3]
         if d is None:
             return Observation(C, Q)
-        terms = self.terms(q, t_colour, quadrant_state)
+        t_context = self.context_terms(Q, q) if (self.context and q is not None) else None
+        terms = self.terms(q, t_colour, quadrant_state, t_context)
         return Observation(C, Q, d, q, self.likelihood_distance(d, terms=terms), terms)
 
     def quadrant_descriptors(self, gray: np.ndarray, poses) -> tuple[np.ndarray, np.ndarray]:
@@ -563,10 +612,13 @@ class ObservationModel:
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
         if self.compiled:
             return kernels.warp_descriptors_fast(
-                gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize, True
+                gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize, True,
+                self.grad_normalize,
             )
         P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
         F = patch_features(P, gain_normalize=self.gain_normalize, quadrants=True)
+        if self.grad_normalize:
+            F = normalize_gradients(F)
         return quadrant_covariances(F, self.eps)
 
     def patches(self, gray: np.ndarray, poses) -> np.ndarray:
@@ -594,12 +646,15 @@ class ObservationModel:
         d = np.concatenate(
             [self._template_distances(L[i : i + OBSERVE_CHUNK], C) for i in range(0, len(L), OBSERVE_CHUNK)]
         ) if len(L) else np.zeros(0)
-        q = t = None
+        q = t = c = None
         if self.quadrants:
-            q = np.broadcast_to(self.quadrant_distances(ob.quadrants, quadrant_state), (len(L), 4))
+            q1 = self.quadrant_distances(ob.quadrants, quadrant_state)
+            q = np.broadcast_to(q1, (len(L), 4))
+            if self.context:
+                c = np.broadcast_to(self.context_terms(ob.quadrants, q1), (len(L),))
         if colour is not None and self.colour:
             t = np.broadcast_to(self.colour_terms(colour, pose), (len(L),))
-        return self.likelihood_distance(d, terms=self.terms(q, t, quadrant_state))
+        return self.likelihood_distance(d, terms=self.terms(q, t, quadrant_state, c))
 
     def descriptors(self, gray: np.ndarray, poses, executor=None, threads: int = 1) -> np.ndarray:
         """Descriptors ``(n, 9, 9)`` at ``poses`` of a prepared frame."""
@@ -666,7 +721,8 @@ class ObservationModel:
         return sp, sd, rp, rd
 
     def terms(
-        self, q: np.ndarray | None, colour: np.ndarray | None = None, quadrant_state: QuadrantState | None = None
+        self, q: np.ndarray | None, colour: np.ndarray | None = None, quadrant_state: QuadrantState | None = None,
+        context: np.ndarray | None = None,
     ) -> dict[str, np.ndarray]:
         """The unweighted extra terms of ``d_eff²`` by name, from the quadrant distances and the colour term."""
         out = {}
@@ -674,6 +730,8 @@ class ObservationModel:
             out["quadrants"] = quadrant_term(q, None if quadrant_state is None else quadrant_state.reliability)
         if colour is not None:
             out["colour"] = np.asarray(colour, dtype=np.float64)
+        if context is not None:
+            out["context"] = np.asarray(context, dtype=np.float64)
         return out
 
     def likelihood_distance(self, d: np.ndarray, q: np.ndarray | None = None, terms: dict | None = None) -> np.ndarray:

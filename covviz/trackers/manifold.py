@@ -115,6 +115,12 @@ class ManifoldConfig:
         Divide each patch's intensity and derivative features by its mean
         intensity: descriptors become invariant to illumination gain
         (see :func:`covviz.features.patch_features`). Not in the paper.
+    grad_normalize : bool
+        Divide each patch's derivative features by their patch mean
+        (:func:`covviz.features.normalize_gradients`): the descriptor no
+        longer depends on how finely the region is sampled, which otherwise
+        ties the box to the initial size (a shrinking target's derivatives
+        per sample shrink with it). Not in the paper.
     quadrants : bool
         Add the quadrant term to each particle's distance (see the module
         docstring). Not in the paper; ``False`` gives the paper's likelihood.
@@ -126,6 +132,12 @@ class ManifoldConfig:
         is the target's rather than its surroundings'. 0 turns it off.
     colour_rate : float
         Learning rate of the colour histograms (Staple's 0.04).
+    context_weight : float
+        Weight of the context term (needs ``quadrants``): how much more a
+        box's quadrants resemble those of the initial box grown by
+        ``context_scale`` than the references
+        (:meth:`~covviz.observation.ObservationModel.context_terms`). 0: off.
+    context_scale : float
     quadrant_reliability : float
         Rate of the running mean of each quadrant's mismatch at the estimate;
         > 0 weighs the quadrants by their reliability (the inverse of that
@@ -146,6 +158,14 @@ class ManifoldConfig:
         whose match is good (``d² < anchor_gate ·`` its running mean), as
         IVT's mean forgets old observations.
     anchor_gate : float
+    refine_fraction : float
+        Two-stage particles (coarse to fine): this fraction of the particles
+        is not propagated by the dynamics but restarted around the best of
+        the others once those are weighed (``_refine``); 0: one stage.
+    refine_top : int
+        The second stage's parents are drawn among this many best particles.
+    refine_noise : float
+        The second stage's pose noise, as a fraction of the everyday (mode-0) noise.
     scale_steps : int
         After the MMSE estimate, score ``2·scale_steps + 1`` scales
         ``scale_step**k`` at the estimated centre with the estimate's template
@@ -182,16 +202,22 @@ class ManifoldConfig:
     threads: int = 2
     smooth_sigma: float = 0.0
     gain_normalize: bool = True
+    grad_normalize: bool = False
     quadrants: bool = True
     quadrant_weight: float = 1.0
     colour_weight: float = 0.0
     colour_rate: float = 0.04
+    context_weight: float = 0.0
+    context_scale: float = 1.25
     quadrant_reliability: float = 0.0
     quadrant_ref_rate: float = 0.0
     quadrant_ref_gate: float = 1.0
     anchor_pull: float = 0.0
     anchor_rate: float = 0.0
     anchor_gate: float = 1.0
+    refine_fraction: float = 0.0
+    refine_top: int = 10
+    refine_noise: float = 0.5
     scale_steps: int = 0
     scale_step: float = 1.02
     rotation_steps: int = 0
@@ -210,6 +236,20 @@ class ManifoldConfig:
             "quadrant_weight",
             "colour_weight",
             "colour_rate",
+            "context_weight",
+            "context_scale",
+            "quadrant_reliability",
+            "quadrant_ref_rate",
+            "quadrant_ref_gate",
+            "anchor_pull",
+            "anchor_rate",
+            "anchor_gate",
+            "refine_fraction",
+            "refine_noise",
+            "scale_step",
+            "rotation_step",
+            "search_blend",
+            "search_pull",
         ):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not np.isfinite(v):
@@ -239,8 +279,29 @@ class ManifoldConfig:
             raise ValueError(f"quadrant_weight must be non-negative, got {self.quadrant_weight}")
         if self.colour_weight < 0:
             raise ValueError(f"colour_weight must be non-negative, got {self.colour_weight}")
-        if not 0 <= self.colour_rate <= 1:
-            raise ValueError(f"colour_rate must be in [0, 1], got {self.colour_rate}")
+        for name in ("colour_rate", "quadrant_reliability", "quadrant_ref_rate", "anchor_pull", "anchor_rate",
+                     "search_blend", "search_pull"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if not 0 <= self.refine_fraction < 1:
+            raise ValueError(f"refine_fraction must be in [0, 1), got {self.refine_fraction}")
+        for name in ("context_weight", "quadrant_ref_gate", "anchor_gate", "refine_noise", "rotation_step"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be non-negative, got {getattr(self, name)}")
+        if not self.context_scale > 1:
+            raise ValueError(f"context_scale must be above 1 (the box grown), got {self.context_scale}")
+        if not self.scale_step > 1:
+            raise ValueError(f"scale_step must be above 1, got {self.scale_step}")
+        for name in ("scale_steps", "rotation_steps", "refine_top"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < 0:
+                raise ValueError(f"{name} must be a non-negative integer, got {v!r}")
+        if self.refine_top < 1:
+            raise ValueError(f"refine_top must be at least 1, got {self.refine_top}")
+        if self.context_weight > 0 and not self.quadrants:
+            raise ValueError("context_weight needs quadrants=True (it compares quadrants)")
+        if self.quadrant_reliability > 0 and not self.quadrants:
+            raise ValueError("quadrant_reliability needs quadrants=True")
         if self.quadrants and self.patch_size % 2:
             raise ValueError(f"quadrants need an even patch_size, got {self.patch_size}")
         if self.smooth_sigma < 0:
@@ -396,6 +457,36 @@ class ManifoldTracker:
             extras={"colour_state": self.colour, "quadrant_state": self.quadrant_state, "anchor": self.anchor},
         )
 
+    def _refine(self, states, templates, modes, log_weights, ob, n1):
+        """Second-stage particles: children of the first stage's best, with shrunken noise (coarse to fine).
+
+        The parents are drawn by weight among the ``refine_top`` best of the
+        first ``n1`` particles; each child takes its parent's template and
+        its pose moved by ``refine_noise`` times the everyday (mode-0) noise.
+        Their mode is recorded as 2.
+        """
+        cfg = self.config
+        km = cfg.kinematics
+        n = len(states)
+        n2 = n - n1
+        w1 = log_weights[:n1] + self.model.log_likelihood(ob.likelihood_distances)
+        k = min(cfg.refine_top, n1)
+        top = np.argsort(-w1, kind="stable")[:k]
+        p = np.exp(normalize_log_weights(w1[top]))
+        parents = top[self.rng.choice(k, size=n2, p=p)]
+        z = self.rng.standard_normal((n2, 4))
+        child = states[parents].copy()
+        size = self.model.base_size * child[:, SCALE]
+        f = cfg.refine_noise
+        child[:, X] += f * km.pos_sigma[0] * size * z[:, 0]
+        child[:, Y] += f * km.pos_sigma[0] * size * z[:, 1]
+        child[:, SCALE] = np.clip(child[:, SCALE] * np.exp(f * km.scale_sigma[0] * z[:, 2]), *km.scale_range)
+        child[:, THETA] = np.clip(child[:, THETA] + f * km.rot_sigma[0] * z[:, 3], -km.max_rotation, km.max_rotation)
+        states = np.concatenate([states[:n1], child])
+        templates = np.concatenate([templates[:n1], templates[parents]])
+        modes = np.concatenate([modes[:n1], np.full(n2, 2, dtype=modes.dtype)])
+        return states, templates, modes
+
     def _search(self, gray, est_pose, est_template, states, cmap, qstate):
         """Scale, then rotation, search at the estimate; the estimate and the particles move towards the best."""
         cfg, model = self.config, self.model
@@ -447,7 +538,22 @@ class ManifoldTracker:
         poses = states[:, POSE]
         colour_state, qstate = self.colour, self.quadrant_state
         cmap = model.colour_map(frame, colour_state)
-        ob = model.observe(gray, poses, templates, self._pool, cfg.threads, tm, colour=cmap, quadrant_state=qstate)
+        n2 = int(round(cfg.refine_fraction * len(states))) if cfg.refine_fraction > 0 else 0
+        n1 = len(states) - n2
+        ob = model.observe(
+            gray, poses[:n1], templates[:n1], self._pool, cfg.threads, tm, colour=cmap, quadrant_state=qstate
+        )
+        if n2:
+            # 2b. second stage: the last n2 particles restart around the best of the first stage
+            states, templates, modes = self._refine(states, templates, modes, ps.log_weights, ob, n1)
+            poses = states[:, POSE]
+            tm2: dict[str, float] = {}
+            ob2 = model.observe(
+                gray, poses[n1:], templates[n1:], self._pool, cfg.threads, tm2, colour=cmap, quadrant_state=qstate
+            )
+            ob = _concat_observations(ob, ob2)
+            for k, v in tm2.items():
+                tm[k] = tm.get(k, 0.0) + v
 
         # 3. weigh
         t2 = time.perf_counter()
@@ -555,6 +661,23 @@ def _ro(a: np.ndarray) -> np.ndarray:
     a = np.array(a, dtype=np.float64)
     a.flags.writeable = False
     return a
+
+
+def _concat_observations(a, b):
+    """One :class:`~covviz.observation.Observation` of two batches, in order."""
+    from covviz.observation import Observation
+
+    def cat(x, y):
+        return None if x is None else np.concatenate([x, y])
+
+    return Observation(
+        cat(a.descriptors, b.descriptors),
+        cat(a.quadrants, b.quadrants),
+        cat(a.distances, b.distances),
+        cat(a.quadrant_distances, b.quadrant_distances),
+        cat(a.likelihood_distances, b.likelihood_distances),
+        {k: np.concatenate([v, b.terms[k]]) for k, v in a.terms.items()},
+    )
 
 
 def _parabolic_step(d: np.ndarray) -> float:
