@@ -14,6 +14,7 @@ Usage::
     python benchmarks/speed.py --threads 1           # pin BLAS/OpenCV to one thread
     python benchmarks/speed.py --quadrants on         # only the default tracker
     python benchmarks/speed.py --jit both             # with and without the compiled kernels
+    python benchmarks/speed.py --quadrants on --terms both   # the default with and without issue 14's terms
 
 These machines are noisy: compare ratios measured side by side in one run, and
 use ``--repeat`` to take the best of several passes.
@@ -90,6 +91,10 @@ def main(argv=None) -> int:
     ap.add_argument("--quadrants", choices=("both", "on", "off"), default="both",
                     help="time the tracker with its quadrant term (on, the default tracker), without it "
                          "(off, the paper's likelihood) or both, side by side (default both)")
+    ap.add_argument("--terms", choices=("both", "on", "off"), default="on",
+                    help="time the tracker with the terms added by issue 14 (on: the derivative normalisation "
+                         "and the colour term, as configured by default), without them (off: "
+                         "manifold.NEW_TERMS_OFF) or both, side by side (default on)")
     ap.add_argument("--jit", choices=("on", "off", "both"), default="on",
                     help="time the tracker with the compiled kernels (on, the default when numba is installed), "
                          "with the numpy path (off) or both, side by side (default on)")
@@ -101,7 +106,7 @@ def main(argv=None) -> int:
     from covviz import kernels
     from covviz.sequences import open_sequence
     from covviz.trackers import make_tracker
-    from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
+    from covviz.trackers.manifold import NEW_TERMS_OFF, ManifoldConfig, ManifoldTracker
 
     seq = open_sequence(args.sequence)
     n = min(args.frames + 1, len(seq))
@@ -129,22 +134,26 @@ def main(argv=None) -> int:
             continue
         peers[name] = time_tracker(make, frames, box, args.repeat)[0]
 
-    stage_names = ("propagate", "warp", "features", "covariance", "distances", "weights", "resample")
-    header = f"{'quadrants':>9} {'jit':>4} {'particles':>9} {'ms/frame':>9} {'fps':>7} "
+    stage_names = ("propagate", "colour", "warp", "features", "covariance", "distances", "weights", "estimate",
+                   "resample")
+    header = f"{'quadrants':>9} {'terms':>5} {'jit':>4} {'particles':>9} {'ms/frame':>9} {'fps':>7} "
     header += " ".join(f"{s:>10}" for s in stage_names)
     header += "".join(f" {'x ' + p:>8}" for p in peers)
     print("\nmanifold tracker, mean ms per update() by stage")
     print(header)
     variants = {"both": (True, False), "on": (True,), "off": (False,)}[args.quadrants]
+    term_variants = {"both": (False, True), "on": (True,), "off": (False,)}[args.terms]
     saved = kernels.JIT_ENABLED
     try:
         for k in (int(v) for v in args.particles.split(",")):
             for quad in variants:
-                for jit in jits:
-                    kernels.JIT_ENABLED = jit
-                    cfg = ManifoldConfig(n_particles=k, threads=args.observe_threads, quadrants=quad)
-                    dt, st = time_tracker(lambda cfg=cfg: ManifoldTracker(cfg, rng=0), frames, box, args.repeat)
-                    _row(k, quad, jit, dt, st, stage_names, peers)
+                for terms in term_variants:
+                    for jit in jits:
+                        kernels.JIT_ENABLED = jit
+                        cfg = ManifoldConfig(n_particles=k, threads=args.observe_threads, quadrants=quad,
+                                             **({} if terms else NEW_TERMS_OFF))
+                        dt, st = time_tracker(lambda cfg=cfg: ManifoldTracker(cfg, rng=0), frames, box, args.repeat)
+                        _row(k, quad, terms, jit, dt, st, stage_names, peers)
     finally:
         kernels.JIT_ENABLED = saved
     for p, pt in peers.items():
@@ -155,9 +164,10 @@ def main(argv=None) -> int:
     return 0
 
 
-def _row(k, quad, jit, dt, st, stage_names, peers) -> None:
-    """Print one table row: quadrants, jit, particles, ms, fps, stages, ratios to the peers."""
-    row = f"{'on' if quad else 'off':>9} {'on' if jit else 'off':>4} {k:>9} {1e3 * dt:>9.2f} {1 / dt:>7.1f} "
+def _row(k, quad, terms, jit, dt, st, stage_names, peers) -> None:
+    """Print one table row: quadrants, terms, jit, particles, ms, fps, stages, ratios to the peers."""
+    row = f"{'on' if quad else 'off':>9} {'on' if terms else 'off':>5} {'on' if jit else 'off':>4} {k:>9} "
+    row += f"{1e3 * dt:>9.2f} {1 / dt:>7.1f} "
     row += " ".join(f"{1e3 * st.get(s, 0):>10.2f}" for s in stage_names)
     row += "".join(f" {pt / dt:>8.2f}" for pt in peers.values())
     print(row)

@@ -131,17 +131,22 @@ def _readonly(a):
     return a
 
 
-def _box_and_ring_histograms(bins: np.ndarray, box, n_bins: int):
-    """Colour counts of ``box`` and of the ring around it (the box grown by :data:`RING_PAD`), clipped to the frame."""
-    H, W = bins.shape
+def _box_and_ring_histograms(frame: np.ndarray, box, grey: bool):
+    """Colour counts of ``box`` and of the ring around it (the box grown by :data:`RING_PAD`), clipped to the frame.
+
+    Only the ring's bounding rectangle of ``frame`` is binned.
+    """
+    H, W = np.shape(frame)[:2]
     x, y, w, h = (float(v) for v in box)
     pad = RING_PAD * (w + h) / 2
-    x0, y0 = int(np.clip(round(x), 0, W)), int(np.clip(round(y), 0, H))
-    x1, y1 = int(np.clip(round(x + w), 0, W)), int(np.clip(round(y + h), 0, H))
     X0, Y0 = int(np.clip(round(x - pad), 0, W)), int(np.clip(round(y - pad), 0, H))
     X1, Y1 = int(np.clip(round(x + w + pad), 0, W)), int(np.clip(round(y + h + pad), 0, H))
-    inner = bins[y0:y1, x0:x1].ravel()
-    outer = bins[Y0:Y1, X0:X1].ravel()
+    x0, y0 = int(np.clip(round(x), X0, X1)), int(np.clip(round(y), Y0, Y1))
+    x1, y1 = int(np.clip(round(x + w), X0, X1)), int(np.clip(round(y + h), Y0, Y1))
+    bins = colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], grey)
+    n_bins = _n_bins(grey)
+    inner = bins[y0 - Y0 : y1 - Y0, x0 - X0 : x1 - X0].ravel()
+    outer = bins.ravel()
     fg = np.bincount(inner, minlength=n_bins).astype(np.float64)
     bg = np.bincount(outer, minlength=n_bins).astype(np.float64) - fg
     return fg, np.maximum(bg, 0.0)
@@ -154,15 +159,13 @@ def _density(counts: np.ndarray) -> np.ndarray:
 def init_colour_model(frame: np.ndarray, box) -> ColourModel:
     """The colour state at the initial box ``x, y, w, h`` (0-based pixels)."""
     grey = _is_grey(frame)
-    bins = colour_bins(frame, grey)
-    fg, bg = _box_and_ring_histograms(bins, box, _n_bins(grey))
+    fg, bg = _box_and_ring_histograms(frame, box, grey)
     return ColourModel(_readonly(_density(fg)), _readonly(_density(bg)), _readonly(np.asarray(box, float)), grey)
 
 
 def update_colour_model(state: ColourModel, frame: np.ndarray, box, rate: float) -> ColourModel:
     """``state`` blended towards the histograms observed at ``box`` with learning ``rate`` (Staple: 0.04)."""
-    bins = colour_bins(frame, state.grey)
-    fg, bg = _box_and_ring_histograms(bins, box, len(state.fg))
+    fg, bg = _box_and_ring_histograms(frame, box, state.grey)
     return ColourModel(
         _readonly((1 - rate) * state.fg + rate * _density(fg)),
         _readonly((1 - rate) * state.bg + rate * _density(bg)),

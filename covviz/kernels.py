@@ -462,15 +462,16 @@ def _regularize(C, eps):
 
 
 @_jit(_FM_FEAT)
-def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q, grad_normalize=False):
+def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q, grad_normalize=0.0):
     """Descriptors of one bordered patch ``B`` (S+2, S+2) float32.
 
     Writes ``C`` (9, 9) and, with ``quadrants``, ``Q`` (4, 9, 9). ``F``
     (9, pixels of a quadrant) float32, ``mq`` (4, 9), ``Mq`` (4, 9, 9), ``r``
-    (9,): scratch. With ``grad_normalize``, the first-derivative features
-    are divided by the patch's mean ``|grad I|`` and the second derivatives
-    by their mean, as a congruence of the moments before regularisation (see
-    :func:`grad_scales`).
+    (9,): scratch. With ``grad_normalize`` (a power ``a`` > 0), the
+    first-derivative features are divided by the patch's mean ``|grad I|``
+    to the power ``a`` and the second derivatives by theirs, as a congruence
+    of the moments before regularisation (the numpy path's
+    :func:`covviz.features.normalize_gradients`).
     """
     g = B.shape[0]
     S = g - 2
@@ -513,9 +514,9 @@ def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q,
             C[b, a] = v
     g1 = 1.0
     g2 = 1.0
-    if grad_normalize:
-        g1 = 1.0 / max(r[5], 1e-6)
-        g2 = 1.0 / max(0.5 * (r[7] + r[8]), 1e-6)
+    if grad_normalize > 0:
+        g1 = max(r[5], 1e-6) ** -grad_normalize
+        g2 = max(0.5 * (r[7] + r[8]), 1e-6) ** -grad_normalize
         for a in range(d):
             ka = g1 if (a >= 3 and a <= 5) else (g2 if a >= 7 else 1.0)
             for b in range(d):
@@ -580,7 +581,7 @@ def _outputs(n: int, quadrants: bool):
 
 
 def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants: bool = True,
-                     grad_normalize: bool = False):
+                     grad_normalize: float = 0.0):
     """Descriptors of warped patches, as the numpy path computes them.
 
     Equal (within the tolerances of ``tests/test_kernels.py``) to
@@ -617,7 +618,7 @@ def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants
         raise ValueError(f"quadrants need an even patch side, got {S}")
     C, Q = _outputs(len(P), quadrants)
     _descriptors_from_patches(P, _coordinates(S), float(eps), bool(gain_normalize), bool(quadrants), C, Q,
-                              bool(grad_normalize))
+                              float(grad_normalize))
     return C, (Q if quadrants else None)
 
 
@@ -638,7 +639,7 @@ def _affine(poses, base_wh, step) -> np.ndarray:
 
 def warp_descriptors_fast(
     gray, poses, base_wh, size: int = 32, step=1.0, eps: float = 1e-3, gain_normalize: bool = True,
-    quadrants: bool = True, grad_normalize: bool = False,
+    quadrants: bool = True, grad_normalize: float = 0.0,
 ):
     """Descriptors at ``poses`` straight from the frame: warp, features and moments fused.
 
@@ -675,7 +676,7 @@ def warp_descriptors_fast(
     q = (np.arange(-1, size + 1, dtype=np.float64) + 0.5) / size - 0.5  # features._unit_grid's coordinates
     C, Q = _outputs(len(A), quadrants)
     _descriptors_from_frame(g32, A, q, _coordinates(size), float(eps), bool(gain_normalize), bool(quadrants), C, Q,
-                            bool(grad_normalize))
+                            float(grad_normalize))
     return C, (Q if quadrants else None)
 
 

@@ -20,12 +20,27 @@ the paper's MDS figures, which receive the model in the tracker's init record
 (:attr:`covviz.records.FrameRecord.model`): they never call the live tracker.
 
 The likelihood
-    ``p(z | x, C) ∝ exp(-d_eff² / 2σ²)`` with ``d_eff² = d(C, C*)²`` (the paper)
-    plus, with quadrants, ``quadrant_weight · mean of the three smallest q_k²``,
-    ``q_k = sqrt(8·J)`` (:func:`covviz.spd.distance_jbld`) of each quadrant of
-    the region against the one observed at the initial box (Porikli, Tuzel and
-    Meer, CVPR 2006). Dropping the worst quadrant keeps a partial occlusion
-    from dominating a particle's score.
+    ``p(z | x, C) ∝ exp(-d_eff² / 2σ²)`` with ``d_eff² = d(C, C*)² + Σ_k w_k ·
+    term_k`` (:meth:`ObservationModel.likelihood_distance`): the paper's
+    ``d(C, C*)²`` plus named, separately weighted terms, each reported per
+    pose in :attr:`Observation.terms` (weights: :attr:`ObservationModel.term_weights`):
+
+    * ``"quadrants"``: the mean of the three smallest ``q_k²``, ``q_k =
+      sqrt(8·J)`` (:func:`covviz.spd.distance_jbld`) of each quadrant of the
+      region against the one observed at the initial box (Porikli, Tuzel and
+      Meer, CVPR 2006). Dropping the worst quadrant keeps a partial occlusion
+      from dominating a particle's score. (Or, given a :class:`QuadrantState`,
+      a reliability-weighted mean against online references.)
+    * ``"colour"``: the foreground/background colour term of
+      :mod:`covviz.fgbg`, given the frame's :meth:`ObservationModel.colour_map`
+      (its histograms are the tracker's online state).
+    * ``"context"``: :meth:`ObservationModel.context_terms`.
+
+    Which terms a model has is fixed when it is built (``manifold-paper``:
+    none). With ``grad_normalize`` the descriptors themselves change (the
+    derivative features are divided by their patch mean,
+    :func:`covviz.features.normalize_gradients`): then the template, the
+    quadrants and the references all see sampling-invariant features.
 
 Determinism
     Poses are cut into fixed chunks of :data:`OBSERVE_CHUNK`, computed the same
@@ -214,10 +229,11 @@ class ObservationModel:
     eps : float
         Descriptor regulariser.
     gain_normalize : bool
-    grad_normalize : bool
-        Divide the derivative features by the patch's mean derivative
-        (:func:`covviz.features.normalize_gradients`): descriptors that do
-        not depend on how finely a region is sampled.
+    grad_normalize : float
+        Divide the derivative features by the patch's mean derivative to
+        this power (:func:`covviz.features.normalize_gradients`; 1: fully,
+        0: not): descriptors that do not depend on how finely a region is
+        sampled.
     smooth_sigma : float
         Gaussian smoothing of the (downsampled) frame, pixels; 0: none.
     likelihood_sigma : float
@@ -249,7 +265,7 @@ class ObservationModel:
     patch_size: int = 32
     eps: float = 1e-3
     gain_normalize: bool = True
-    grad_normalize: bool = False
+    grad_normalize: float = 0.0
     smooth_sigma: float = 0.0
     likelihood_sigma: float = 0.5
     quadrant_weight: float = 1.0
@@ -262,6 +278,7 @@ class ObservationModel:
     jit: bool = True
 
     def __post_init__(self):
+        object.__setattr__(self, "grad_normalize", float(self.grad_normalize))
         object.__setattr__(self, "base_wh", (float(self.base_wh[0]), float(self.base_wh[1])))
         object.__setattr__(self, "step_xy", (float(self.step_xy[0]), float(self.step_xy[1])))
         object.__setattr__(self, "quadrant_reference", _frozen(self.quadrant_reference))
@@ -281,7 +298,7 @@ class ObservationModel:
         patch_size: int = 32,
         eps: float = 1e-3,
         gain_normalize: bool = True,
-        grad_normalize: bool = False,
+        grad_normalize: float = 0.0,
         smooth_sigma: float = 0.0,
         antialias: bool = True,
         quadrants: bool = True,
@@ -342,7 +359,7 @@ class ObservationModel:
             patch_size=config.patch_size,
             eps=config.eps,
             gain_normalize=config.gain_normalize,
-            grad_normalize=getattr(config, "grad_normalize", False),
+            grad_normalize=float(getattr(config, "grad_normalize", 0.0)),
             smooth_sigma=config.smooth_sigma,
             antialias=config.antialias,
             quadrants=config.quadrants,
@@ -411,7 +428,8 @@ class ObservationModel:
         return (
             f"{self.patch_size}×{self.patch_size} patches of a {w:.0f}×{h:.0f} region at scale 1, {aa}, "
             f"{'gain-normalised' if self.gain_normalize else 'raw'} features"
-            f"{' (derivatives normalised)' if self.grad_normalize else ''}, ε={self.eps:g}, "
+            f"{f' (derivatives normalised, power {self.grad_normalize:g})' if self.grad_normalize else ''}"
+            f", ε={self.eps:g}, "
             f"σ={self.likelihood_sigma:g}, "
             + (f"quadrant term (weight {self.quadrant_weight:g})" if self.quadrants else "the paper's likelihood")
             + (f", colour term (weight {self.colour_weight:g})" if self.colour else "")
@@ -479,8 +497,8 @@ class ObservationModel:
         P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
         t1 = time.perf_counter()
         F = patch_features(P, gain_normalize=self.gain_normalize, quadrants=self.quadrants)
-        if self.grad_normalize:
-            F = normalize_gradients(F)
+        if self.grad_normalize > 0:
+            F = normalize_gradients(F, self.grad_normalize)
         t2 = time.perf_counter()
         if self.quadrants:
             C, Q = quadrant_covariances(F, self.eps)
@@ -617,8 +635,8 @@ class ObservationModel:
             )
         P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
         F = patch_features(P, gain_normalize=self.gain_normalize, quadrants=True)
-        if self.grad_normalize:
-            F = normalize_gradients(F)
+        if self.grad_normalize > 0:
+            F = normalize_gradients(F, self.grad_normalize)
         return quadrant_covariances(F, self.eps)
 
     def patches(self, gray: np.ndarray, poses) -> np.ndarray:

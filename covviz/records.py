@@ -39,7 +39,7 @@ def frame_number(index: int) -> int:
 
 
 #: Names of the timed stages of a manifold-tracker update, in execution order.
-STAGES = ("propagate", "warp", "features", "covariance", "distances", "weights", "estimate", "resample")
+STAGES = ("propagate", "colour", "warp", "features", "covariance", "distances", "weights", "estimate", "resample")
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -86,7 +86,11 @@ class FrameRecord:
         Seconds spent in each stage (see :data:`STAGES`) plus ``"total"``.
     extras : dict[str, Any]
         Tracker-specific arrays (for example the IPCA mean and basis, or an
-        OpenCV tracker's failure flag).
+        OpenCV tracker's failure flag). The manifold tracker puts the
+        likelihood's factors here: ``terms`` (name → per-particle values) and
+        ``term_weights`` (name → weight), with ``likelihood_distances² =
+        distances² + Σ weight·term``, and the online state they used (see
+        :class:`covviz.trackers.manifold.ManifoldTracker`).
     model : object, optional
         On the init record (index 0) of a covariance tracker: its frozen
         :class:`~covviz.observation.ObservationModel`, which observers use to

@@ -164,7 +164,7 @@ def test_no_jit_environment_selects_the_numpy_path():
         "from covviz import kernels\n"
         "from covviz.sequences import SyntheticSequence\n"
         "from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker\n"
-        "from covviz.features import warp_patches, patch_features\n"
+        "from covviz.features import warp_patches, patch_features, normalize_gradients\n"
         "from covviz.descriptor import quadrant_covariances\n"
         "from covviz.trackers.base import to_gray\n"
         "import sys\n"
@@ -177,7 +177,8 @@ def test_no_jit_environment_selects_the_numpy_path():
         "assert m.jit and not m.compiled\n"
         "C = m.descriptors(m.prepare(seq.frame(1).image), poses)\n"
         "P = warp_patches(to_gray(seq.frame(1).image), poses, m.base_wh, 32, 1, 1.0)\n"
-        "ref = quadrant_covariances(patch_features(P, gain_normalize=True, quadrants=True), 1e-3)[0]\n"
+        "F = normalize_gradients(patch_features(P, gain_normalize=True, quadrants=True))\n"
+        "ref = quadrant_covariances(F, 1e-3)[0]\n"
         "assert np.array_equal(C, ref)\n"
         "print('numpy path')\n"
     )

@@ -23,7 +23,7 @@ from covviz.observation import quadrant_term
 from covviz.records import STAGES, FrameRecord
 from covviz.sequences import SyntheticSequence
 from covviz.trackers.base import IdentityTracker, Tracker, check_init_box
-from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker, make
+from covviz.trackers.manifold import PAPER_LIKELIHOOD, ManifoldConfig, ManifoldTracker, make
 
 D = 9
 N_TRACK = 60  # frames of the tracking-quality test
@@ -393,9 +393,10 @@ def test_identity_tracker_returns_the_initial_box(synth):
 # --------------------------------------------------------------------------- #
 def test_weights_follow_the_likelihood_distances(synth):
     """log w = normalise(-d_eff² / 2σ²) with d_eff² = d² + weight · quadrant_term(q), and the
-    diagnostics' likelihood_distances gives the same d_eff at a particle's pose and template."""
+    diagnostics' likelihood_distances gives the same d_eff at a particle's pose and template.
+    (The colour term's share is tested in tests/test_quality.py; here it is off.)"""
     seq, frames = synth
-    cfg = ManifoldConfig(n_particles=40, quadrant_weight=0.7)
+    cfg = ManifoldConfig(n_particles=40, quadrant_weight=0.7, colour_weight=0.0)
     tr = ManifoldTracker(cfg, rng=3)
     tr.init(frames[0], seq.init_box)
     assert tr.model.quadrant_reference.shape == (4, D, D)
@@ -415,7 +416,7 @@ def test_weights_follow_the_likelihood_distances(synth):
 
 def test_quadrants_off_is_the_papers_likelihood(synth):
     seq, frames = synth
-    tr = ManifoldTracker(ManifoldConfig(n_particles=30, quadrants=False), rng=3)
+    tr = ManifoldTracker(ManifoldConfig(n_particles=30, **PAPER_LIKELIHOOD), rng=3)
     tr.init(frames[0], seq.init_box)
     tr.update(frames[1])
     rec = tr.last_record
@@ -434,8 +435,8 @@ def test_manifold_paper_is_the_tracker_without_quadrants(synth):
     seq, frames = synth
     tr = make_tracker("manifold-paper", rng=5, n_particles=30)
     assert tr.name == "manifold-paper" and "manifold-paper" in STOCHASTIC
-    assert tr.config == ManifoldConfig(n_particles=30, quadrants=False)
-    ref = ManifoldTracker(ManifoldConfig(n_particles=30, quadrants=False), rng=5)
+    assert tr.config == ManifoldConfig(n_particles=30, **PAPER_LIKELIHOOD) and not tr.config.quadrants
+    ref = ManifoldTracker(ManifoldConfig(n_particles=30, **PAPER_LIKELIHOOD), rng=5)
     for t in (tr, ref):
         t.init(frames[0], seq.init_box)
     for f in frames[1:4]:

@@ -10,7 +10,7 @@ import pytest
 
 from covviz import spd
 from covviz.descriptor import quadrant_covariances
-from covviz.features import patch_features, warp_patches
+from covviz.features import normalize_gradients, patch_features, warp_patches
 from covviz.observation import OBSERVE_CHUNK, ObservationModel, box_to_pose, quadrant_term
 from covviz.sequences import SyntheticSequence
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
@@ -50,7 +50,7 @@ def test_build_fixes_size_and_quadrant_references(seq, model):
     # The references are the quadrants observed at the initial box, by the plain pipeline.
     gray = model.prepare(seq.frame(0).image)
     P = warp_patches(gray, [[x + w / 2, y + h / 2, 1.0, 0.0]], (w, h), 32, 1, 1.0)
-    _, Q = quadrant_covariances(patch_features(P, gain_normalize=True, quadrants=True), 1e-3)
+    _, Q = quadrant_covariances(normalize_gradients(patch_features(P, gain_normalize=True, quadrants=True)), 1e-3)
     numpy_model = ObservationModel.from_config(seq.frame(0).image, seq.init_box, ManifoldConfig(jit=False))
     np.testing.assert_array_equal(numpy_model.quadrant_reference, Q[0])  # the numpy path, bit for bit
     # The compiled kernels (when there) observe the same, up to the numpy path's float32 moments.
@@ -181,7 +181,8 @@ def test_init_record_carries_the_model_the_tracker_weighs_with(seq):
         rec = tr.last_record
         assert rec.model is None  # only the init record carries it
         # What the model says at the particles' poses is what the tracker weighed them by.
-        ob = m.observe(m.prepare(frames[1]), rec.particle_poses, rec.templates)
+        cmap = m.colour_map(frames[1], rec.extras["colour_state"])
+        ob = m.observe(m.prepare(frames[1]), rec.particle_poses, rec.templates, colour=cmap)
         np.testing.assert_array_equal(ob.descriptors, rec.descriptors)
         np.testing.assert_array_equal(ob.likelihood_distances, rec.extras["likelihood_distances"])
 

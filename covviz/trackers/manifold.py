@@ -26,8 +26,25 @@ their distances, the weight uses
 ``q_k`` are ``sqrt(8·J)`` with ``J`` the Jensen–Bregman LogDet divergence
 (:func:`covviz.spd.jbld`), which equals the affine-invariant distance to
 second order and costs Cholesky factorisations instead of eigensolvers. The
-paper's per-particle templates are unchanged; ``quadrants=False`` gives the
-paper's likelihood exactly (the tracker ``manifold-paper``).
+paper's per-particle templates are unchanged.
+
+Issue 14 (not in the paper; measured in ``docs/tuning.md`` and
+``docs/ablation.md``). Two changes are on by default:
+
+* **Derivative normalisation** (``grad_normalize``): the derivative
+  features are divided by their patch mean. A derivative per patch sample
+  depends on how finely the region is sampled, so without it a box kept the
+  sampling density of the initial box: shrinking targets kept boxes too
+  large (Car1, Car4), growing ones too small (Surfer).
+* **A foreground/background colour term** (``colour_weight``,
+  :mod:`covviz.fgbg`): Staple-style colour histograms of the box and a ring
+  around it, a separate factor of the likelihood.
+
+Also implemented, measured and left off: a scale/rotation search at the
+estimate, quadrant reliabilities with online references, an anchored
+template walk, two-stage particles and a context term (their config fields).
+:data:`PAPER_LIKELIHOOD` turns everything covviz added off: the paper's
+likelihood exactly (the tracker ``manifold-paper``).
 
 Reference: the paper in ``shared/paper.tex``, sections 2–3.
 """
@@ -115,9 +132,9 @@ class ManifoldConfig:
         Divide each patch's intensity and derivative features by its mean
         intensity: descriptors become invariant to illumination gain
         (see :func:`covviz.features.patch_features`). Not in the paper.
-    grad_normalize : bool
-        Divide each patch's derivative features by their patch mean
-        (:func:`covviz.features.normalize_gradients`): the descriptor no
+    grad_normalize : float
+        Divide each patch's derivative features by their patch mean to this
+        power, 0 to 1 (:func:`covviz.features.normalize_gradients`): the descriptor no
         longer depends on how finely the region is sampled, which otherwise
         ties the box to the initial size (a shrinking target's derivatives
         per sample shrink with it). Not in the paper.
@@ -202,10 +219,10 @@ class ManifoldConfig:
     threads: int = 2
     smooth_sigma: float = 0.0
     gain_normalize: bool = True
-    grad_normalize: bool = False
+    grad_normalize: float = 1.0
     quadrants: bool = True
     quadrant_weight: float = 1.0
-    colour_weight: float = 0.0
+    colour_weight: float = 10.0
     colour_rate: float = 0.04
     context_weight: float = 0.0
     context_scale: float = 1.25
@@ -236,6 +253,7 @@ class ManifoldConfig:
             "quadrant_weight",
             "colour_weight",
             "colour_rate",
+            "grad_normalize",
             "context_weight",
             "context_scale",
             "quadrant_reliability",
@@ -279,7 +297,7 @@ class ManifoldConfig:
             raise ValueError(f"quadrant_weight must be non-negative, got {self.quadrant_weight}")
         if self.colour_weight < 0:
             raise ValueError(f"colour_weight must be non-negative, got {self.colour_weight}")
-        for name in ("colour_rate", "quadrant_reliability", "quadrant_ref_rate", "anchor_pull", "anchor_rate",
+        for name in ("grad_normalize", "colour_rate", "quadrant_reliability", "quadrant_ref_rate", "anchor_pull", "anchor_rate",
                      "search_blend", "search_pull"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
@@ -366,11 +384,33 @@ class ManifoldTracker:
     Notes
     -----
     Besides the standard fields, ``last_record.extras`` holds ``modes``
-    ``(n,)`` (the noise mode each particle drew), ``velocity`` ``(2,)`` (of the
-    estimate), ``quadrant_distances`` ``(n, 4)`` (None without quadrants) and
+    ``(n,)`` (the noise mode each particle drew: 0, 1, or 2 for a
+    second-stage particle), ``velocity`` ``(2,)`` (of the estimate),
+    ``quadrant_distances`` ``(n, 4)`` (None without quadrants) and
     ``likelihood_distances`` ``(n,)``, the distance each particle was weighed
     by (``record.distances`` is the paper's template distance alone). The
-    init record's ``model`` is the observation model.
+    likelihood's factors, so a diagnosis can tell which one a failure came
+    from:
+
+    * ``terms``: dict of name → ``(n,)``, each extra term of the likelihood
+      per particle, unweighted (``"quadrants"``, ``"colour"``, ``"context"``:
+      those the model has; empty for ``manifold-paper``);
+    * ``term_weights``: dict of name → weight, so that
+      ``likelihood_distances² == distances² + Σ_k term_weights[k]·terms[k]``
+      and each particle's log-weight is ``−likelihood_distances²/2σ²``
+      (normalised); a term's share of the weight is what removing it would
+      change;
+    * the online state the likelihood used this frame (frozen dataclasses,
+      None when off): ``colour_state`` (:class:`covviz.fgbg.ColourModel`;
+      ``model.colour_map(frame, state)`` then gives what
+      ``observe(..., colour=…)`` needs), ``quadrant_state``
+      (:class:`~covviz.observation.QuadrantState`), ``anchor``
+      (:class:`AnchorState`, the template walk's anchor);
+    * ``pose_search``: the scale and rotation candidates scored at the
+      estimate and their ``d_eff`` (None without the search).
+
+    The init record's ``model`` is the observation model and its ``extras``
+    the initial online state.
 
     Examples
     --------
@@ -537,7 +577,9 @@ class ManifoldTracker:
         gray = model.prepare(frame)
         poses = states[:, POSE]
         colour_state, qstate = self.colour, self.quadrant_state
+        tc = time.perf_counter()
         cmap = model.colour_map(frame, colour_state)
+        tm["colour"] = time.perf_counter() - tc
         n2 = int(round(cfg.refine_fraction * len(states))) if cfg.refine_fraction > 0 else 0
         n1 = len(states) - n2
         ob = model.observe(
@@ -702,9 +744,26 @@ def make(n_particles: int | None = None, rng=None) -> ManifoldTracker:
     return ManifoldTracker(cfg, rng)
 
 
+#: What makes ``manifold-paper`` the paper's likelihood: every term and step covviz added to it, off
+#: (gain normalisation and anti-aliasing stay: they are part of how covviz observes, also for the paper).
+PAPER_LIKELIHOOD = {
+    "quadrants": False,
+    "grad_normalize": 0.0,
+    "colour_weight": 0.0,
+    "context_weight": 0.0,
+    "quadrant_reliability": 0.0,
+    "anchor_pull": 0.0,
+    "refine_fraction": 0.0,
+    "scale_steps": 0,
+    "rotation_steps": 0,
+}
+#: The terms issue 14 added on top of the quadrant term, off: the default of before (for ablations and speed).
+NEW_TERMS_OFF = {k: v for k, v in PAPER_LIKELIHOOD.items() if k != "quadrants"}
+
+
 def make_paper(n_particles: int | None = None, rng=None) -> ManifoldTracker:
-    """Factory for ``manifold-paper``: the defaults without the quadrant term (the paper's likelihood)."""
+    """Factory for ``manifold-paper``: the defaults with :data:`PAPER_LIKELIHOOD` (the paper's likelihood)."""
     kw = {} if n_particles is None else {"n_particles": n_particles}
-    tr = ManifoldTracker(ManifoldConfig(quadrants=False, **kw), rng)
+    tr = ManifoldTracker(ManifoldConfig(**PAPER_LIKELIHOOD, **kw), rng)
     tr.name = "manifold-paper"
     return tr
