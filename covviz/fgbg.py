@@ -59,6 +59,12 @@ GREY_BINS = 32
 RING_PAD = 0.5
 #: The window the term is computed over: the previous estimate grown to this multiple of its size.
 WINDOW_FACTOR = 4.0
+_COLOUR_SHIFT = 8 - int(np.log2(COLOUR_BINS))
+_GREY_SHIFT = 8 - int(np.log2(GREY_BINS))
+if 2 ** (8 - _COLOUR_SHIFT) != COLOUR_BINS or 2 ** (8 - _GREY_SHIFT) != GREY_BINS:  # pragma: no cover
+    raise ImportError("COLOUR_BINS and GREY_BINS must be powers of two (colour_bins shifts)")
+#: The contrast (total-variation distance of the histograms) at which a reliability-scaled term has gain 1.
+CONTRAST_REF = 0.5
 #: Prior density added to both classes in every bin, so a colour neither has seen gets P = ½.
 PRIOR = 1e-6
 
@@ -89,9 +95,11 @@ def colour_bins(frame: np.ndarray, grey: bool) -> np.ndarray:
         f = np.clip(np.asarray(f, dtype=np.float32) * 255.0 + 0.5, 0, 255).astype(np.uint8)
     if grey:
         g = f if f.ndim == 2 else f[..., 0]
-        return (g.astype(np.int32) * GREY_BINS) >> 8
-    q = f.astype(np.int32) * COLOUR_BINS >> 8
-    return (q[..., 0] * COLOUR_BINS + q[..., 1]) * COLOUR_BINS + q[..., 2]
+        return (g >> _GREY_SHIFT).astype(np.intp)
+    # (r·b >> 8, g·b >> 8, b·b >> 8) for b = 2^k bins: shifts, in 16 bits (half the time of int32 products).
+    q = f >> _COLOUR_SHIFT
+    k = 8 - _COLOUR_SHIFT
+    return ((q[..., 0].astype(np.uint16) << (2 * k)) | (q[..., 1].astype(np.uint16) << k) | q[..., 2]).astype(np.intp)
 
 
 def _n_bins(grey: bool) -> int:
@@ -188,16 +196,24 @@ class ColourMap:
         ``F*``: the sum of ``max(P − ½, 0)`` over the window.
     area : float
         ``A``: the area of the previous estimate, pixels².
+    gain : float
+        Factor of the term: 1, or with a reliability exponent ``r``,
+        ``(contrast / CONTRAST_REF)**r`` (the histograms' power to tell target
+        from background, as CSRT weighs its channels by their reliability).
     """
 
     origin: tuple[int, int]
     integral: np.ndarray
     best: float
     area: float
+    gain: float = 1.0
 
 
-def colour_map(frame: np.ndarray, state: ColourModel) -> ColourMap:
-    """The foreground probability of ``frame`` in the window around ``state.box`` (:data:`WINDOW_FACTOR`)."""
+def colour_map(frame: np.ndarray, state: ColourModel, reliability: float = 0.0) -> ColourMap:
+    """The foreground probability of ``frame`` in the window around ``state.box`` (:data:`WINDOW_FACTOR`).
+
+    ``reliability`` > 0 scales the term by ``(state.contrast / CONTRAST_REF)**reliability``.
+    """
     H, W = np.shape(frame)[:2]
     x, y, w, h = (float(v) for v in state.box)
     cx, cy = x + w / 2, y + h / 2
@@ -208,7 +224,8 @@ def colour_map(frame: np.ndarray, state: ColourModel) -> ColourMap:
     lut = (state.fg + PRIOR) / (state.fg + state.bg + 2 * PRIOR) - 0.5
     P = lut[bins]
     integral = cv2.integral(P.astype(np.float64), sdepth=cv2.CV_64F)
-    return ColourMap((X0, Y0), integral, float(np.maximum(P, 0.0).sum()), max(w * h, 1.0))
+    gain = (state.contrast / CONTRAST_REF) ** reliability if reliability > 0 else 1.0
+    return ColourMap((X0, Y0), integral, float(np.maximum(P, 0.0).sum()), max(w * h, 1.0), float(gain))
 
 
 def box_sums(integral: np.ndarray, origin, boxes: np.ndarray) -> np.ndarray:
@@ -229,4 +246,5 @@ def box_sums(integral: np.ndarray, origin, boxes: np.ndarray) -> np.ndarray:
 
 def colour_term(cmap: ColourMap, boxes: np.ndarray) -> np.ndarray:
     """``t = (F* − F(B)) / A ≥ 0`` of each box ``(n, 4)``, ``(n,)`` (see the module docstring)."""
-    return np.maximum(cmap.best - box_sums(cmap.integral, cmap.origin, boxes), 0.0) / cmap.area
+    t = np.maximum(cmap.best - box_sums(cmap.integral, cmap.origin, boxes), 0.0) / cmap.area
+    return t if cmap.gain == 1.0 else cmap.gain * t

@@ -244,6 +244,9 @@ class ObservationModel:
         likelihood, without the quadrant term).
     quadrant_logdet : ndarray, shape (4,), or None
         Their log-determinants.
+    colour_reliability : float
+        Exponent of the colour term's reliability gain
+        (:attr:`covviz.fgbg.ColourMap.gain`); 0: none.
     colour_weight : float
         Weight of the foreground/background colour term
         (:func:`covviz.fgbg.colour_term`) in ``d_eff²``; 0: no colour term.
@@ -272,6 +275,7 @@ class ObservationModel:
     quadrant_reference: np.ndarray | None = field(default=None, repr=False)
     quadrant_logdet: np.ndarray | None = field(default=None, repr=False)
     colour_weight: float = 0.0
+    colour_reliability: float = 0.0
     context_weight: float = 0.0
     context_reference: np.ndarray | None = field(default=None, repr=False)
     context_logdet: np.ndarray | None = field(default=None, repr=False)
@@ -305,6 +309,7 @@ class ObservationModel:
         quadrant_weight: float = 1.0,
         likelihood_sigma: float = 0.5,
         colour_weight: float = 0.0,
+        colour_reliability: float = 0.0,
         context_weight: float = 0.0,
         context_scale: float = 1.25,
         jit: bool = True,
@@ -336,6 +341,7 @@ class ObservationModel:
             likelihood_sigma=likelihood_sigma,
             quadrant_weight=quadrant_weight,
             colour_weight=colour_weight,
+            colour_reliability=colour_reliability,
             jit=jit,
         )
         if quadrants:
@@ -366,6 +372,7 @@ class ObservationModel:
             quadrant_weight=config.quadrant_weight,
             likelihood_sigma=config.likelihood_sigma,
             colour_weight=getattr(config, "colour_weight", 0.0),
+            colour_reliability=getattr(config, "colour_reliability", 0.0),
             context_weight=getattr(config, "context_weight", 0.0),
             context_scale=getattr(config, "context_scale", 1.25),
             jit=getattr(config, "jit", True),
@@ -451,7 +458,7 @@ class ObservationModel:
         """The foreground probability of a (raw, colour) ``frame`` given the colour state; None without the term."""
         if not self.colour or state is None:
             return None
-        return fgbg.colour_map(frame, state)
+        return fgbg.colour_map(frame, state, self.colour_reliability)
 
     def colour_terms(self, cmap: fgbg.ColourMap, poses) -> np.ndarray:
         """The colour term (unweighted) of each pose's axis-aligned box (:func:`covviz.features.pose_to_box`), ``(n,)``."""

@@ -149,6 +149,10 @@ class ManifoldConfig:
         is the target's rather than its surroundings'. 0 turns it off.
     colour_rate : float
         Learning rate of the colour histograms (Staple's 0.04).
+    colour_reliability : float
+        Scale the colour term by ``(contrast / 0.5)**colour_reliability``,
+        ``contrast`` the total-variation distance of the two histograms (how
+        well colour tells target from background); 0: a fixed weight.
     context_weight : float
         Weight of the context term (needs ``quadrants``): how much more a
         box's quadrants resemble those of the initial box grown by
@@ -224,6 +228,7 @@ class ManifoldConfig:
     quadrant_weight: float = 1.0
     colour_weight: float = 10.0
     colour_rate: float = 0.04
+    colour_reliability: float = 0.0
     context_weight: float = 0.0
     context_scale: float = 1.25
     quadrant_reliability: float = 0.0
@@ -253,6 +258,7 @@ class ManifoldConfig:
             "quadrant_weight",
             "colour_weight",
             "colour_rate",
+            "colour_reliability",
             "grad_normalize",
             "context_weight",
             "context_scale",
@@ -303,7 +309,7 @@ class ManifoldConfig:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         if not 0 <= self.refine_fraction < 1:
             raise ValueError(f"refine_fraction must be in [0, 1), got {self.refine_fraction}")
-        for name in ("context_weight", "quadrant_ref_gate", "anchor_gate", "refine_noise", "rotation_step"):
+        for name in ("colour_reliability", "context_weight", "quadrant_ref_gate", "anchor_gate", "refine_noise", "rotation_step"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be non-negative, got {getattr(self, name)}")
         if not self.context_scale > 1:
