@@ -126,6 +126,7 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
         "likelihood), ipca, identity, csrt, kcf, mil, mosse, medianflow, tld",
     )
     p.add_argument("--particles", type=positive_int, help="number of particles (default: the tracker's own)")
+    add_config_arg(p)
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0): same seed, same boxes")
     p.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
     p.add_argument("--out", type=Path, default=Path("runs"), help="results folder (default: runs/)")
@@ -133,6 +134,16 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
     add_recording_args(p)
     p.set_defaults(func=cmd_track)
     return p
+
+
+def add_config_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--config",
+        type=Path,
+        metavar="FILE.json",
+        help="ManifoldConfig of the manifold trackers: a JSON object of its fields, the others default "
+        "(e.g. the best.json of 'covviz tune'); --particles overrides its n_particles",
+    )
 
 
 # Rerun options in the style of rr.script_add_args, as our own flags: several sinks at once
@@ -269,12 +280,47 @@ def _check_out_dir(out: Path) -> None:
         raise UsageError(f"cannot write to {out}: {exc.strerror or exc}; choose another --out") from None
 
 
-def _make_trackers(names: list[str], seed: int, particles: int | None) -> list:
-    """The trackers of a run, each with the stream of ``seed`` (:func:`covviz.trackers.tracker_rng`)."""
-    from covviz.trackers import make_tracker
+def read_config(path: Path | None, trackers: list[str]):
+    """``--config FILE``: the ManifoldConfig in a JSON file of its fields (None without the option).
+
+    Fields left out keep their defaults; ``--particles`` overrides ``n_particles``.
+    Raises :class:`UsageError` (one line) on a missing or bad file, or when no tracker
+    of ``trackers`` takes a config.
+    """
+    import json
+
+    from covviz.trackers import CONFIGURABLE
+
+    if path is None:
+        return None
+    if not set(trackers) & CONFIGURABLE:
+        raise UsageError(
+            f"--config sets a ManifoldConfig: it needs one of the trackers {', '.join(sorted(CONFIGURABLE))}"
+        )
+    from covviz.trackers.manifold import ManifoldConfig
 
     try:
-        return [make_tracker(name, seed=seed, n_particles=particles) for name in names]
+        doc = json.loads(Path(path).read_text())
+    except OSError as exc:
+        raise UsageError(f"--config {path}: {exc.strerror or exc}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UsageError(f"--config {path}: not JSON ({exc}); give a JSON object of ManifoldConfig fields") from None
+    try:
+        return ManifoldConfig.from_dict(doc)
+    except (ValueError, TypeError) as exc:
+        raise UsageError(f"--config {path}: {exc}") from None
+
+
+def _make_trackers(names: list[str], seed: int, particles: int | None, config_path: Path | None = None) -> list:
+    """The trackers of a run, each with the stream of ``seed`` (:func:`covviz.trackers.tracker_rng`)."""
+    from covviz.trackers import CONFIGURABLE, make_tracker
+
+    config = read_config(config_path, names)
+    try:
+        return [
+            make_tracker(name, seed=seed, n_particles=particles, config=config if name in CONFIGURABLE else None)
+            for name in names
+        ]
     except ValueError as exc:  # a config value the tracker refuses (e.g. --particles)
         raise UsageError(str(exc)) from None
 
@@ -299,7 +345,7 @@ def _track(args) -> int:
     first = seq.frame(0)  # fail early on an unreadable first frame or a bad box
     check_init_box(seq.init_box, first.image.shape)
     _check_out_dir(args.out)
-    trackers = _make_trackers(args.trackers, args.seed, args.particles)
+    trackers = _make_trackers(args.trackers, args.seed, args.particles, getattr(args, "config", None))
     # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
     n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
     recorders, rrd = _recording_observers(args, seq, n_frames)
