@@ -73,6 +73,7 @@ __all__ = [
     "lock_results_folder",
     "make_executor",
     "plan_jobs",
+    "read_sequences",
     "save_output",
 ]
 
@@ -147,6 +148,30 @@ def find_sequences(root: str | Path, exclude: Seq[str | Path] = ()) -> list[Path
             "sequence name, so bench one of them at a time"
         )
     return sorted(found, key=lambda p: p.name.lower())
+
+
+def read_sequences(root: str | Path, exclude: Seq[str | Path] = ()) -> dict[str, tuple[str, int]]:
+    """name -> (path, number of frames) of every sequence under ``root`` (:func:`find_sequences`).
+
+    Fails early, with the sequence's name, on a folder that cannot be read.
+
+    Raises
+    ------
+    BenchError
+    """
+    from covviz.sequences import SequenceError, open_sequence
+
+    sequences: dict[str, tuple[str, int]] = {}
+    for p in find_sequences(root, exclude=exclude):
+        try:
+            seq = open_sequence(p)
+            if len(seq) < 2:
+                raise SequenceError(f"{p}: a sequence needs at least 2 frames, found {len(seq)}")
+            seq.init_box  # noqa: B018 - raises if the first frame has no ground truth
+        except SequenceError as exc:
+            raise BenchError(f"sequence {p.name}: {exc}") from None
+        sequences[seq.name] = (str(p), len(seq))
+    return sequences
 
 
 def plan_jobs(
@@ -463,7 +488,6 @@ def bench(
     BenchError
         Empty root, unknown tracker, a folder from another run, a corrupt result.
     """
-    from covviz.sequences import SequenceError, open_sequence
     from covviz.trackers import tracker_names
 
     try:
@@ -480,17 +504,7 @@ def bench(
         if not set(trackers) & CONFIGURABLE:
             raise BenchError(f"--config sets a ManifoldConfig: it needs one of {', '.join(sorted(CONFIGURABLE))}")
 
-    # Sequences: fail early, with the sequence's name, on a folder that cannot be read.
-    sequences: dict[str, tuple[str, int]] = {}
-    for p in find_sequences(root, exclude=[out]):
-        try:
-            seq = open_sequence(p)
-            if len(seq) < 2:
-                raise SequenceError(f"{p}: a sequence needs at least 2 frames, found {len(seq)}")
-            seq.init_box  # noqa: B018 - raises if the first frame has no ground truth
-        except SequenceError as exc:
-            raise BenchError(f"sequence {p.name}: {exc}") from None
-        sequences[seq.name] = (str(p), len(seq))
+    sequences = read_sequences(root, exclude=[out])
 
     configs = tracker_configs(trackers, particles, config)
     try:
