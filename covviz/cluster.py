@@ -190,10 +190,11 @@ def dask_executor(spec: str, retries: int = 1) -> DaskExecutor:
                     raise ValueError
             except ValueError:
                 raise ClusterError(f"--cluster {spec}: expected local:N with N >= 1 worker processes") from None
-            # One thread per worker (each runs one job process at a time), no dashboard (no port to clash).
+            # One thread per worker (each runs one job process at a time); the scheduler's HTTP server
+            # (always started) on a free loopback port, so that two of these never clash on 8787.
             cluster = LocalCluster(
-                n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                silence_logs=logging.ERROR,
+                n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR,
             )
             client = Client(cluster)
             name = f"dask:local:{n}"
