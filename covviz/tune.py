@@ -267,7 +267,7 @@ def tune(
     except OSError as exc:
         raise TuneError(f"cannot write to {out}: {exc.strerror or exc}; choose another --out") from None
     try:
-        base_cfg = ManifoldConfig.from_dict(base or {})
+        base_cfg = ManifoldConfig.from_dict({**(base or {}), **({"n_particles": particles} if particles else {})})
     except (ValueError, TypeError) as exc:
         raise TuneError(f"--config: {exc}") from None
     try:
@@ -576,8 +576,9 @@ def _figures(study, img_dir: Path) -> list[tuple[str, Path]]:
     return done
 
 
-def print_summary(summary: dict, file=sys.stdout) -> None:
-    """The lines ``covviz tune`` prints at the end."""
+def print_summary(summary: dict, file=None) -> None:
+    """The lines ``covviz tune`` prints at the end (to ``file``, default stdout)."""
+    file = file or sys.stdout
     b = summary["best"]
     print(f"best: trial {b['number']}, mean success AUC {b['value']:.4f} on the tuning seeds", file=file)
     h = summary["holdout"]
