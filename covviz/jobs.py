@@ -285,8 +285,11 @@ class JobProcess:
                 close_fds=True,
             )
         # The job, then stdin stays open: the process ends itself when it closes (we went away).
-        self._proc.stdin.write(pickle.dumps((job, threads, executor, slots), protocol=pickle.HIGHEST_PROTOCOL))
-        self._proc.stdin.flush()
+        try:
+            self._proc.stdin.write(pickle.dumps((job, threads, executor, slots), protocol=pickle.HIGHEST_PROTOCOL))
+            self._proc.stdin.flush()
+        except OSError:  # it died at once (killed); collect() says how
+            pass
 
     @property
     def pid(self) -> int:

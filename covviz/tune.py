@@ -161,13 +161,24 @@ def _mean(values) -> float:
 # --------------------------------------------------------------------------- #
 # the study
 # --------------------------------------------------------------------------- #
+#: Attempts at opening a storage: processes that create one at the same moment race on its schema.
+STORAGE_ATTEMPTS = 5
+
+
 def _storage(optuna, url: str):
     """An RDB storage; SQLite waits for a lock instead of failing at once (several processes)."""
     kw = {"engine_kwargs": {"connect_args": {"timeout": 60}}} if url.startswith("sqlite") else {}
-    try:
-        return optuna.storages.RDBStorage(url, **kw)
-    except Exception as exc:  # noqa: BLE001 - bad URL, missing driver, unreachable database
-        raise TuneError(f"--storage {url}: cannot open it ({exc.__class__.__name__}: {exc})") from None
+    for attempt in range(1, STORAGE_ATTEMPTS + 1):
+        try:
+            return optuna.storages.RDBStorage(url, **kw)
+        except Exception as exc:  # noqa: BLE001 - bad URL, missing driver, unreachable database, a race
+            # Two processes creating the tables at once: one fails on the schema version row
+            # (IntegrityError) or a lock (OperationalError); the tables exist on the next try.
+            if attempt < STORAGE_ATTEMPTS and exc.__class__.__name__ in ("IntegrityError", "OperationalError"):
+                time.sleep(0.5 * attempt)
+                continue
+            raise TuneError(f"--storage {url}: cannot open it ({exc.__class__.__name__}: {exc})") from None
+    raise AssertionError("unreachable")
 
 
 def _open_study(optuna, storage, name: str, settings: TuneSettings):
