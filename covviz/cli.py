@@ -406,6 +406,9 @@ examples:
   covviz bench ../shared/sequences --trackers csrt,kcf,mil --out runs/peers
   covviz bench ../shared/sequences --trackers manifold,ipca,csrt,kcf,mil --seeds 3 --jobs 2 --out runs/bench
   covviz bench ../shared/sequences/Car4 --trackers manifold --seeds 5 --max-frames 200 --out runs/car4
+  covviz bench ../shared/sequences --trackers manifold --config runs/tune/best.json --out runs/tuned
+  covviz bench /data/sequences --cluster tcp://scheduler:8786 --out runs/bench   # on a Dask cluster
+  covviz bench ../shared/sequences --cluster local:2 --out runs/bench          # a local Dask cluster
   covviz report runs/bench --out docs/results.md     # rebuild the report elsewhere
 
 Results go to OUT/<sequence>/<tracker>_s<seed>.txt (boxes, OTB results format, 1-based)
@@ -413,6 +416,11 @@ and .json (metrics, per-frame times, config, seed); deterministic trackers have 
 Run the same command again to resume: finished results are kept and skipped. Adding
 trackers or seeds to a folder extends it. Seed s of a stochastic tracker reproduces
 'covviz track SEQ --tracker NAME --seed s'.
+
+Every job runs in a fresh process; a job whose process is killed runs again (--retries).
+On a cluster (pip install 'covviz[cluster]'; start 'dask scheduler' and, on each machine,
+'dask worker ADDRESS --nthreads 1'), workers read the sequences at the same path as given
+here and send their results back: they need no access to --out.
 """
 
 REPORT_EPILOG = """\
@@ -432,7 +440,8 @@ def add_bench_parser(sub) -> argparse.ArgumentParser:
         "bench",
         help="run trackers on every sequence under a folder; write results and a report",
         description="Run each tracker on each sequence under ROOT (K seeds for the stochastic trackers, "
-        "once for the others), in J worker processes; write per-frame boxes and a JSON per run to --out "
+        "once for the others), J at a time here or on a Dask cluster, each in a fresh process; write "
+        "per-frame boxes and a JSON per run to --out "
         "as each finishes (resumable), then the report (see 'covviz report').",
         epilog=BENCH_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

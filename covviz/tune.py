@@ -562,7 +562,6 @@ def _figures(study, img_dir: Path) -> list[tuple[str, Path]]:
     plots = [
         ("optimization history", "tune_history.png", ovm.plot_optimization_history),
         ("parameter importances", "tune_importances.png", ovm.plot_param_importances),
-        ("slices: score against each parameter", "tune_slices.png", ovm.plot_slice),
         ("intermediate values (mean AUC after each sequence)", "tune_intermediate.png",
          ovm.plot_intermediate_values),
     ]
@@ -579,12 +578,61 @@ def _figures(study, img_dir: Path) -> list[tuple[str, Path]]:
             plt.close("all")
             continue
         fig = (np.ravel(ax)[0] if isinstance(ax, np.ndarray) else ax).figure
-        if name == "tune_slices.png":
-            fig.set_size_inches(max(8.0, 2.6 * len(fig.axes)), 3.2)
         fig.savefig(img_dir / name, dpi=DPI, bbox_inches="tight")
         plt.close(fig)
         done.append((title, img_dir / name))
+    if _slices(study, img_dir / "tune_slices.png"):
+        done.insert(2, ("score against each parameter (completed trials; best ★, base ◆)", img_dir / "tune_slices.png"))
     return done
+
+
+def _slices(study, path: Path) -> bool:
+    """Score against each parameter of the space, one panel each (Optuna's slice plot, on a grid)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from optuna.trial import TrialState
+
+    from covviz.trackers.manifold import SEARCH_SPACE
+
+    trials = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    if not trials:
+        return False
+    best = _best_trial(study)
+    import matplotlib.style
+    from matplotlib.ticker import NullFormatter
+
+    names = list(SEARCH_SPACE)
+    cols = 3
+    rows = -(-len(names) // cols)
+    with matplotlib.style.context("default"):  # Optuna's plots switch pyplot to its own style
+        fig = Figure(figsize=(3.4 * cols, 2.6 * rows))
+        FigureCanvasAgg(fig)
+        _slice_panels(fig, study, trials, best, names, cols, rows, SEARCH_SPACE, NullFormatter)
+        fig.tight_layout()
+        fig.savefig(path, dpi=DPI)
+    return True
+
+
+def _slice_panels(fig, study, trials, best, names, cols, rows, space, null_formatter) -> None:
+    y = [t.value for t in trials]
+    for k, name in enumerate(names):
+        ax = fig.add_subplot(rows, cols, k + 1)
+        x = [t.params.get(name, float("nan")) for t in trials]
+        ax.scatter(x, y, c=[t.number for t in trials], cmap="viridis", s=16)
+        for t, marker in ((best, "*"), (_base_trial(study), "D")):
+            if t is not None and name in t.params:
+                ax.scatter([t.params[name]], [t.value], marker=marker, s=90 if marker == "*" else 40,
+                           facecolor="none", edgecolor="crimson", linewidth=1.2)
+        low, high, scale = space[name]
+        if scale == "log":
+            ax.set_xscale("log")
+            ax.xaxis.set_minor_formatter(null_formatter())
+        ax.set_xlim(low, high)
+        ax.set_xlabel(name, fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+        if k % cols == 0:
+            ax.set_ylabel("mean success AUC", fontsize=8)
 
 
 def print_summary(summary: dict, file=None) -> None:
