@@ -3,7 +3,8 @@
 The flow is got-10k's (run → results on disk → report)::
 
     ROOT/<sequence>/...        OTB (img/ + groundtruth_rect.txt) or VOT (groundtruth.txt) folders
-        │  one job per (sequence, tracker, seed), longest first, J worker processes
+        │  one job per (sequence, tracker, seed), longest first, each in a fresh process
+        │  (covviz.jobs), J at a time here or on a Dask cluster (covviz.cluster); results come back
         ▼
     OUT/<sequence>/<tracker>_s<seed>.txt|.json   (covviz.results; deterministic trackers: <tracker>.txt|.json)
     OUT/bench_manifest.json                      what this folder holds: root, trackers, seeds, ...
@@ -454,7 +455,7 @@ def bench(
     seeds : int
         Seeds per stochastic tracker (``0 … seeds-1``).
     jobs : int
-        Worker processes; every job runs in a fresh one. Each worker gets
+        Jobs at a time on this machine, each in a fresh process with
         ``max(1, cpu_count // jobs)`` OpenCV/BLAS threads, so fps depend on ``jobs``.
     max_frames : int, optional
         Run only the first frames of each sequence.
