@@ -288,7 +288,8 @@ def tune(
     settings = TuneSettings(tracker, sequences, seeds, max_frames, particles, base_cfg.as_dict())
     url = storage or f"sqlite:///{(out / 'study.db').resolve()}"
 
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    # Optuna's own lines (a trial's failure with its traceback, Ctrl-C included) give way to ours.
+    optuna.logging.set_verbosity(optuna.logging.ERROR)
     study = _open_study(optuna, _storage(optuna, url), study_name, settings)
 
     from covviz.trackers.manifold import search_params, suggest_config
@@ -311,6 +312,9 @@ def tune(
                                          desc=f"trial {trial.number}")
                 except optuna.TrialPruned:
                     log.info("trial %d pruned (%.0f s)", trial.number, time.perf_counter() - t0)
+                    raise
+                except _JobFailed as exc:
+                    log.warning("trial %d failed (the study goes on): %s", trial.number, exc)
                     raise
                 trial.set_user_attr("per_sequence", score["per_sequence"])
                 trial.set_user_attr("per_seed", {str(k): v for k, v in score["per_seed"].items()})
