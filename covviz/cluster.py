@@ -165,6 +165,28 @@ class DaskExecutor:
                 self.cluster.close()
 
 
+@contextlib.contextmanager
+def _sigint_ignored():
+    """Ignore SIGINT while the block starts processes (main thread only).
+
+    A process started meanwhile keeps SIGINT ignored (Python installs no
+    KeyboardInterrupt handler then), so the LocalCluster's workers, in our process
+    group, do not die with tracebacks on a terminal's Ctrl-C; this process
+    handles it and closes them.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 def dask_executor(spec: str, retries: int = 1) -> DaskExecutor:
     """Connect to the cluster ``spec`` (see the module docstring) and wait for a worker.
 
@@ -192,10 +214,11 @@ def dask_executor(spec: str, retries: int = 1) -> DaskExecutor:
                 raise ClusterError(f"--cluster {spec}: expected local:N with N >= 1 worker processes") from None
             # One thread per worker (each runs one job process at a time); the scheduler's HTTP server
             # (always started) on a free loopback port, so that two of these never clash on 8787.
-            cluster = LocalCluster(
-                n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR,
-            )
+            with _sigint_ignored():  # the workers inherit it: a terminal's Ctrl-C is ours to handle
+                cluster = LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                    dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR,
+                )
             client = Client(cluster)
             name = f"dask:local:{n}"
         elif spec.endswith(".json"):
