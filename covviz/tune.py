@@ -401,7 +401,9 @@ def _holdout(study, executor, settings, trial, seeds, progress, config) -> dict:
     try:
         score = score_config(executor, settings, config, seeds, progress=progress, desc=desc)
     except _JobFailed as exc:
-        raise TuneError(f"the held-out run failed: {exc}") from None
+        # A finding, not a crash of the command: the configuration fails on seeds it was not chosen on.
+        log.warning("the held-out run of the %s failed: %s", desc.removeprefix("held-out "), exc)
+        score = {"mean": None, "per_sequence": {}, "per_seed": {}, "seeds": list(seeds), "error": str(exc)}
     score["per_seed"] = {str(k): v for k, v in score["per_seed"].items()}
     score["trial"] = None if trial is None else trial.number
     study.set_user_attr(key, score)
@@ -494,6 +496,11 @@ def _holdout_section(best, base, holdout, settings) -> list[str]:
     hb, h0 = holdout["best"], holdout["base"]
     tuning = _seeds_text(range(settings.seeds))
     held = _seeds_text(holdout["seeds"])
+    failed = [(who, h["error"]) for who, h in (("best", hb), ("base", h0)) if h.get("error")]
+    if failed:
+        return ["## Does it hold on held-out seeds?", "",
+                *[f"The held-out run (seeds {held}) of the {who} configuration failed: {err}." for who, err in failed],
+                ""]
     lines = [
         "## Does it hold on held-out seeds?",
         "",
@@ -645,7 +652,10 @@ def print_summary(summary: dict, file=None) -> None:
     b = summary["best"]
     print(f"best: trial {b['number']}, mean success AUC {b['value']:.4f} on the tuning seeds", file=file)
     h = summary["holdout"]
-    if h:
+    failed = [f"the {who} failed ({h[who]['error']})" for who in ("best", "base") if h and h[who].get("error")]
+    if failed:
+        print(f"held-out seeds {_seeds_text(h['seeds'])}: " + "; ".join(failed), file=file)
+    elif h:
         print(f"held-out seeds {_seeds_text(h['seeds'])}: best {h['best']['mean']:.4f}, "
               f"base {h['base']['mean']:.4f} ({h['best']['mean'] - h['base']['mean']:+.4f})", file=file)
     print(f"best configuration: {summary['best_config']}   "
