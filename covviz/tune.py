@@ -523,8 +523,9 @@ def _holdout_section(best, base, holdout, settings) -> list[str]:
             f"Gain of the best over the base: {gain_tune:+.4f} on the tuning seeds, **{gain_held:+.4f}** on the "
             "held-out seeds"
             + (f" ({kept:.0%} of it held)." if math.isfinite(kept) else ".")
-            + " Seed-to-seed spread of the base on the held-out seeds: "
-            + _fmt(_spread(h0["per_seed"].values()), 4) + ".",
+            + " For scale, the base's mean success AUC per seed, tuning and held-out: "
+            + ", ".join(f"{v:.3f}" for v in _base_per_seed(base, h0)) + " (std "
+            + _fmt(_spread(_base_per_seed(base, h0)), 3) + ").",
             "",
         ]
     lines += ["| sequence | best, held-out | base, held-out | difference |", "|---|---:|---:|---:|"]
@@ -532,6 +533,12 @@ def _holdout_section(best, base, holdout, settings) -> list[str]:
         b = h0["per_sequence"].get(q, float("nan"))
         lines.append(f"| {q} | {v:.3f} | {b:.3f} | {v - b:+.3f} |")
     return [*lines, ""]
+
+
+def _base_per_seed(base, h0) -> list[float]:
+    """The base configuration's score of every seed it ran, tuning seeds then held-out ones."""
+    tuning = (base.user_attrs.get("per_seed") or {}) if base is not None else {}
+    return [*map(float, tuning.values()), *map(float, h0["per_seed"].values())]
 
 
 def _spread(values) -> float:
@@ -589,7 +596,9 @@ def _figures(study, img_dir: Path) -> list[tuple[str, Path]]:
             plt.close("all")
             continue
         fig = (np.ravel(ax)[0] if isinstance(ax, np.ndarray) else ax).figure
-        fig.savefig(img_dir / name, dpi=DPI, bbox_inches="tight")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "tight layout not applied" on a long list of parameters
+            fig.savefig(img_dir / name, dpi=DPI, bbox_inches="tight")
         plt.close(fig)
         done.append((title, img_dir / name))
     if _slices(study, img_dir / "tune_slices.png"):
