@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import time
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +44,7 @@ __all__ = [
     "MANIFEST_NAME",
     "ResultError",
     "ResultWriter",
+    "box_lines",
     "load_result",
     "read_manifest",
     "result_paths",
@@ -90,8 +92,18 @@ def _atomic_write(path: Path, text: str) -> None:
     _atomic_write_with(path, lambda tmp: tmp.write_text(text))
 
 
-def save_result(result: RunResult, out_dir: str | Path, extra: dict | None = None) -> dict:
+def box_lines(boxes: np.ndarray) -> list[str]:
+    """The lines of a boxes file for 0-based ``boxes``, exactly as :func:`~covviz.sequences.write_boxes` writes them."""
+    b = np.array(boxes, dtype=np.float64, copy=True).reshape(-1, 4)
+    b[:, :2] += 1.0
+    return [",".join(f"{v:.2f}" for v in row) + "\n" for row in b]
+
+
+def save_result(result: RunResult, out_dir: str | Path, extra: dict | None = None, *,
+                box_text: str | None = None) -> dict:
     """Write a run's boxes and JSON (metrics, times, config); return the JSON dict.
+
+    ``box_text`` is the boxes file's text if it is already formatted (``"".join(box_lines(boxes))``).
 
     Raises
     ------
@@ -123,7 +135,10 @@ def save_result(result: RunResult, out_dir: str | Path, extra: dict | None = Non
     text = json.dumps(doc, indent=1, default=_json_default, allow_nan=True)
     try:
         txt.parent.mkdir(parents=True, exist_ok=True)
-        _atomic_write_with(txt, lambda tmp: write_boxes(tmp, result.boxes))
+        if box_text is None:
+            _atomic_write_with(txt, lambda tmp: write_boxes(tmp, result.boxes))
+        else:
+            _atomic_write(txt, box_text)
         _atomic_write(js, text)  # last: the JSON says how many of the boxes count
     except OSError as exc:
         raise WriteError.from_os_error(txt, exc, WRITE_HINT) from None
@@ -150,16 +165,23 @@ class ResultWriter:
         Frames in the files on disk now (0 before the first write).
     """
 
+    #: A write may take at most this share of the run: long runs are written less often.
+    MAX_SHARE = 0.02
+
     def __init__(self, out_dir, extra: dict | None = None, progress_seconds: float = 1.0) -> None:
         self.out_dir = out_dir
         self.extra = extra
-        self.progress_seconds = float(progress_seconds)
+        self.period = float(progress_seconds)
+        self.progress_seconds = self.period
         self.docs: list[dict] = []
         self.saved_frames = 0
         self._failed = False
+        self._lines: dict[int, list[str]] = {}  # per run: the formatted boxes so far (they never change)
 
     def on_progress(self, results) -> None:
+        t0 = time.perf_counter()
         self._save(results)
+        self.progress_seconds = max(self.period, (time.perf_counter() - t0) / self.MAX_SHARE)
 
     def on_end(self, results) -> None:
         self.docs = self._save(results)
@@ -170,12 +192,20 @@ class ResultWriter:
         if results[0].interrupted and len(results[0].boxes) < 2:
             return []  # stopped before tracking anything: the one box is the one given
         try:
-            docs = [save_result(r, self.out_dir, self.extra) for r in results]
+            docs = [save_result(r, self.out_dir, self.extra, box_text=self._box_text(j, r.boxes))
+                    for j, r in enumerate(results)]
         except WriteError:
             self._failed = True  # once is enough: the files of the last good write stay
             raise
         self.saved_frames = len(results[0].boxes)
         return docs
+
+    def _box_text(self, j: int, boxes: np.ndarray) -> str:
+        lines = self._lines.setdefault(j, [])
+        if len(lines) > len(boxes):
+            lines.clear()
+        lines.extend(box_lines(boxes[len(lines):]))
+        return "".join(lines)
 
 
 def load_result(json_path: str | Path) -> tuple[dict, np.ndarray]:

@@ -80,6 +80,8 @@ def stop_signals() -> Iterator[None]:
     """Handle SIGINT and SIGTERM as described in the module docstring, then restore the old handlers.
 
     Only the main thread can set signal handlers; elsewhere this does nothing.
+    After a stop signal the process is stopping: the handlers are not restored,
+    and SIGINT and SIGTERM are ignored from then on.
     """
     if threading.current_thread() is not threading.main_thread() or _state.active:
         yield
@@ -90,8 +92,14 @@ def stop_signals() -> Iterator[None]:
     try:
         yield
     finally:
+        _state.active = False
+        stopping = _state.first is not None or _state.pending is not None
         for s, h in old.items():
-            signal.signal(s, h)
+            # The process is stopping: a later signal must not kill it while the interpreter shuts
+            # down (Python then puts its handlers back to SIG_DFL, and a second Ctrl-C 50 ms after
+            # the first ended the process by SIGINT after the results were saved). Ignored
+            # signals stay ignored through the shutdown.
+            signal.signal(s, signal.SIG_IGN if stopping else h)
         _state.reset()
 
 
