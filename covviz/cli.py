@@ -361,6 +361,12 @@ def _check_memory(args, frame_shape) -> None:
         )
 
 
+def _recording_complete(path: Path) -> bool:
+    from covviz.viz.sinks import recording_complete
+
+    return bool(recording_complete(path))
+
+
 def _q(path) -> str:
     """A path as a shell would need it (quoted if it has spaces)."""
     return shlex.quote(str(path))
@@ -419,8 +425,11 @@ def _track(args) -> int:
             return code
     except InputError as exc:
         # A broken frame or a full disk: one line from main (exit 2) that also says what was kept.
-        if writer.saved_frames:
-            exc.args = (f"{exc} (the results of the {writer.saved_frames} frames before it are in {where}/)",)
+        kept = [f"the results of the {writer.saved_frames} frames before it in {where}/"] if writer.saved_frames else []
+        if rrd is not None and _recording_complete(rrd):
+            kept.append(f"the recording {_q(rrd)}")
+        if kept:
+            exc.args = (f"{exc} (kept: {' and '.join(kept)})",)
         _remove_empty(created)
         raise
     except BaseException:

@@ -36,9 +36,9 @@ class WriteError(InputError):
 
 
 def free_space(path) -> str:
-    """``"12.0 MB free in /mnt"``, for ``path`` or its nearest existing folder."""
+    """``"12.0 MB free in /mnt/runs"``, for the nearest existing folder of ``path``."""
     p = Path(path)
-    while not p.exists() and p != p.parent:
+    while (not p.exists() or not p.is_dir()) and p != p.parent:
         p = p.parent
     try:
         free = shutil.disk_usage(p).free

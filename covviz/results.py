@@ -184,7 +184,13 @@ class ResultWriter:
         self.progress_seconds = max(self.period, (time.perf_counter() - t0) / self.MAX_SHARE)
 
     def on_end(self, results) -> None:
-        self.docs = self._save(results)
+        try:
+            self.docs = self._save(results)
+        except WriteError:
+            if not (results and results[0].interrupted):
+                raise
+            # A stopped run (often stopped by this very disk): the files of the last good write
+            # stay, and saved_frames says how many frames they hold.
 
     def _save(self, results) -> list[dict]:
         if self._failed or not results or not len(results[0].boxes):

@@ -175,8 +175,9 @@ class FreeSpaceGuard(Observer):
             need = self.reserve_bytes + self.footer_share * size
             if free < need:
                 raise WriteError(
-                    f"the disk of {p} is almost full ({free / 1e6:.1f} MB free, {need / 1e6:.0f} MB kept to "
-                    "finish the files): the run stopped; free some space, or write elsewhere (--out, --save)"
+                    f"the disk of {p} is {'full' if free < 1e6 else 'almost full'} ({free / 1e6:.1f} MB free, "
+                    f"{need / 1e6:.0f} MB kept to finish the files): the run stopped; free some space, or write "
+                    "elsewhere (--out, --save)"
                 )
 
 
