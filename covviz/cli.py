@@ -416,6 +416,8 @@ def _track(args) -> int:
         )
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (covviz.signals): keep what was done
         code = exit_code(exc)
+        for note in getattr(exc, "__notes__", []):  # an observer that could not finish (covviz.runner)
+            log.warning("%s", note)
         results = collector.results
         log.warning("interrupted: the results hold the %d frames done so far", writer.saved_frames)
         if rrd is not None:
@@ -424,12 +426,15 @@ def _track(args) -> int:
             _remove_empty(created)
             return code
     except InputError as exc:
-        # A broken frame or a full disk: one line from main (exit 2) that also says what was kept.
+        # A broken frame or a full disk: one line from main (exit 2) that also says what was kept
+        # (the observers' notes - the recording cut short by the same full disk - are in it).
         kept = [f"the results of the {writer.saved_frames} frames before it in {where}/"] if writer.saved_frames else []
-        if rrd is not None and _recording_complete(rrd):
-            kept.append(f"the recording {_q(rrd)}")
+        if rrd is not None:
+            kept.append(f"the recording {_q(rrd)}" if _recording_complete(rrd) else
+                        f"the recording {_q(rrd)} cut short ('rerun rrd migrate {_q(rrd)}' completes it)")
         if kept:
-            exc.args = (f"{exc} (kept: {' and '.join(kept)})",)
+            exc.args = (f"{exc} (kept: {'; '.join(kept)})",)
+        exc.__notes__ = []
         _remove_empty(created)
         raise
     except BaseException:

@@ -233,6 +233,7 @@ def run_many(
             ob.on_start(sequence, trackers)
     done = 0
     interrupted = False
+    stopped_by: BaseException | None = None
 
     def results_so_far(stopped: bool) -> list[RunResult]:
         return [
@@ -290,22 +291,24 @@ def run_many(
                     tot = times[:, 1 : i + 1].sum()
                     if tot > 0:
                         bar.set_postfix(fps=f"{k * i / tot:.0f}")
-    except BaseException:
+    except BaseException as exc:
         interrupted = True
+        stopped_by = exc
         raise
     finally:
         if bar is not None:
             bar.close()
         results = results_so_far(interrupted)
-        _end(observers, results, failing=interrupted)
+        _end(observers, results, failing=stopped_by if interrupted else None)
     return results
 
 
-def _end(observers, results, failing: bool) -> None:
+def _end(observers, results, failing: BaseException | None) -> None:
     """Every observer's ``on_end``, even when one fails; a stop signal waits until they are done.
 
-    The first failure is raised afterwards, unless the run is already failing (``failing``):
-    then the run's own exception goes on and the observers' failures are logged, one line each.
+    The first failure is raised afterwards, unless the run is already failing (``failing``, the
+    exception that stopped it): then that exception goes on, with the observers' failures added
+    as notes (``add_note``: a traceback shows them; the command line words them its own way).
     """
     errors: list[BaseException] = []
     with shielded():
@@ -317,9 +320,9 @@ def _end(observers, results, failing: bool) -> None:
                     errors.append(exc)
     if not errors:
         return
-    if failing:
+    if failing is not None:
         for exc in errors:
-            log.warning("%s", exc)
+            failing.add_note(f"{type(exc).__name__}: {exc}")
         return
     raise errors[0]
 
