@@ -28,7 +28,8 @@ class WriteError(InputError):
     @classmethod
     def from_os_error(cls, path, exc: OSError, hint: str) -> WriteError:
         """One line for an ``OSError`` raised while writing ``path``, ending with ``hint`` (what to do)."""
-        path = Path(exc.filename) if getattr(exc, "filename", None) else Path(path)
+        name = str(getattr(exc, "filename", None) or path)
+        path = Path(name[: -len(".part")] if name.endswith(".part") else name)  # the file being replaced
         if exc.errno in (errno.ENOSPC, errno.EDQUOT):
             what = "no space left on the device" if exc.errno == errno.ENOSPC else "disk quota exceeded"
             return cls(f"{what} while writing {path} ({free_space(path)}); free some space, or {hint}")

@@ -351,7 +351,12 @@ class VideoSequence(Sequence):
 
     def __init__(self, source: str | Path, box):
         source = str(source)
-        self.name = Path(source.split("*")[0]).stem or Path(source).parent.name or "video"
+        # The name is what comes before the first "*" (frames/img_*.png: "img_"), not counting the
+        # folders that exist as written (a folder may be called a*b).
+        head = _existing_head(source) if is_glob(source) else None
+        skip = len(str(head)) if head is not None else 0
+        prefix = source[:skip] + source[skip:].split("*")[0]
+        self.name = Path(prefix).stem or Path(source).parent.name or "video"
         self._cap = None
         self._shape = None
         if is_glob(source):
@@ -554,14 +559,22 @@ def is_glob(source: str) -> bool:
     return any(c in source for c in "*?[") and not Path(source).exists()
 
 
-def _escape_existing(pattern: str) -> str:
-    """``pattern`` with its longest existing folder prefix escaped: ``br[1]/*.png`` globs inside ``br[1]``."""
+def _existing_head(pattern: str) -> Path | None:
+    """The longest folder at the start of a glob pattern that exists as it is written."""
     p = Path(pattern)
     for k in range(len(p.parts) - 1, 0, -1):
         head = Path(*p.parts[:k])
         if head.is_dir():
-            return str(Path(_glob.escape(str(head)), *p.parts[k:]))
-    return pattern
+            return head
+    return None
+
+
+def _escape_existing(pattern: str) -> str:
+    """``pattern`` with its longest existing folder prefix escaped: ``br[1]/*.png`` globs inside ``br[1]``."""
+    head = _existing_head(pattern)
+    if head is None:
+        return pattern
+    return str(Path(_glob.escape(str(head)), *Path(pattern).parts[len(head.parts):]))
 
 
 def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
