@@ -29,7 +29,7 @@ class WriteError(InputError):
     def from_os_error(cls, path, exc: OSError, hint: str) -> WriteError:
         """One line for an ``OSError`` raised while writing ``path``, ending with ``hint`` (what to do)."""
         name = str(getattr(exc, "filename", None) or path)
-        path = Path(name[: -len(".part")] if name.endswith(".part") else name)  # the file being replaced
+        path = Path(name.removesuffix(".part"))  # the file being replaced
         if exc.errno in (errno.ENOSPC, errno.EDQUOT):
             what = "no space left on the device" if exc.errno == errno.ENOSPC else "disk quota exceeded"
             return cls(f"{what} while writing {path} ({free_space(path)}); free some space, or {hint}")

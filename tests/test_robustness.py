@@ -66,7 +66,8 @@ def one_error_line(err: str, command: str = "track") -> str:
 
 def verify(path: Path, footers: bool = True) -> bool:
     args = [] if footers else ["--check-footers", "false"]
-    return subprocess.run([RERUN, "rrd", "verify", *args, str(path)], capture_output=True, timeout=120).returncode == 0
+    return subprocess.run([RERUN, "rrd", "verify", *args, str(path)], capture_output=True, timeout=120,
+                          check=False).returncode == 0
 
 
 def no_part_files(root: Path) -> None:
@@ -127,7 +128,7 @@ def test_sigterm_keeps_the_results_and_a_valid_recording(tmp_path):
     proc, js, rrd = start_track(tmp_path)
     wait_for(proc, js.is_file)
     proc.send_signal(signal.SIGTERM)
-    code, out, err = finish(proc)
+    code, _, err = finish(proc)
     assert code == 143, err
     doc, boxes = load_result(js)
     assert doc["interrupted"] is True and 2 <= doc["n_frames"] < 300 and len(boxes) == doc["n_frames"]
@@ -178,7 +179,8 @@ def test_sigkill_leaves_partial_results_and_a_recording_rerun_can_open(tmp_path)
     # `rerun rrd migrate` adds the footer (README: What survives what).
     copy = tmp_path / "copy.rrd"
     shutil.copy(rrd, copy)
-    assert subprocess.run([RERUN, "rrd", "migrate", str(copy)], capture_output=True, timeout=120).returncode == 0
+    migrate = subprocess.run([RERUN, "rrd", "migrate", str(copy)], capture_output=True, timeout=120, check=False)
+    assert migrate.returncode == 0
     assert verify(copy)
 
 
@@ -187,14 +189,12 @@ def test_signals_in_process_first_raises_later_ones_are_only_reported(caplog):
 
     saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        with pytest.raises(Interrupted) as exc:
-            with stop_signals():
-                with shielded():
-                    os.kill(os.getpid(), signal.SIGTERM)  # held back while "saving"
-                    time.sleep(0.05)
-                    os.kill(os.getpid(), signal.SIGINT)  # a second signal: reported, never raised
-                    time.sleep(0.05)
-                    held = True
+        with pytest.raises(Interrupted) as exc, stop_signals(), shielded():
+            os.kill(os.getpid(), signal.SIGTERM)  # held back while "saving"
+            time.sleep(0.05)
+            os.kill(os.getpid(), signal.SIGINT)  # a second signal: reported, never raised
+            time.sleep(0.05)
+            held = True
         assert held and exit_code(exc.value) == 143 and exit_code(KeyboardInterrupt()) == 130
         assert "already stopping" in caplog.text
         assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN  # the process is stopping
@@ -253,7 +253,9 @@ def test_on_progress_gets_the_frames_so_far_marked_interrupted():
 
     class Progress:
         progress_seconds = 0.0
-        seen: list = []
+
+        def __init__(self):
+            self.seen = []
 
         def on_progress(self, results):
             self.seen.append((len(results[0].boxes), results[0].interrupted))
@@ -305,7 +307,7 @@ def test_enospc_is_one_write_error_and_leaves_no_part_file(tmp_path, monkeypatch
 
 def test_injected_enospc_mid_run_stops_it_with_one_line_and_keeps_the_last_write(tmp_path, monkeypatch):
     # The same as a real full disk, on any machine: the second write of the results fails.
-    import covviz.results as results
+    from covviz import results
 
     calls = {"n": 0}
     real = results._atomic_write
@@ -318,7 +320,7 @@ def test_injected_enospc_mid_run_stops_it_with_one_line_and_keeps_the_last_write
 
     monkeypatch.setattr(results, "_atomic_write", flaky)
     monkeypatch.setattr(results.ResultWriter, "__init__", _fast_writer_init(results.ResultWriter.__init__))
-    code, out, err = run_main(["track", "--trackers", "identity", "--max-frames", "40", "--no-progress", "--no-save",
+    code, _, err = run_main(["track", "--trackers", "identity", "--max-frames", "40", "--no-progress", "--no-save",
                                "--out", str(tmp_path / "runs")])
     assert code == 2
     line = one_error_line(err)
@@ -339,7 +341,7 @@ def _fast_writer_init(init):
 def test_free_space_guard_stops_the_run_while_there_is_room(tmp_path, monkeypatch):
     from collections import namedtuple
 
-    import covviz.runner as runner
+    from covviz import runner
 
     usage = namedtuple("usage", "total used free")
     state = {"free": 10**9}
@@ -374,13 +376,13 @@ def test_load_result_counts_what_the_json_names_after_a_kill_between_the_two_ren
 def small_disk(tmp_path):
     mnt = tmp_path / "mnt"
     mnt.mkdir()
-    p = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=40m", "tmpfs", str(mnt)], capture_output=True)
+    p = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=40m", "tmpfs", str(mnt)], capture_output=True, check=False)
     if p.returncode != 0:
         pytest.skip("cannot mount a tmpfs here (needs root)")
     try:
         yield mnt
     finally:
-        subprocess.run(["umount", str(mnt)], capture_output=True)
+        subprocess.run(["umount", str(mnt)], capture_output=True, check=False)
 
 
 @needs_rerun
@@ -411,7 +413,7 @@ def test_disk_full_mid_run_is_one_line_exit_2_and_keeps_the_results(small_disk, 
 
 
 def test_a_recording_cut_short_is_blamed_on_the_disk_not_the_viewer(tmp_path, monkeypatch):
-    import covviz.viz.sinks as sinks
+    from covviz.viz import sinks
 
     stream = sinks.new_recording()
     rrd = tmp_path / "x.rrd"
@@ -424,7 +426,7 @@ def test_a_recording_cut_short_is_blamed_on_the_disk_not_the_viewer(tmp_path, mo
 
 
 def test_recording_complete_reads_the_footer(tmp_path):
-    import covviz.viz.sinks as sinks
+    from covviz.viz import sinks
 
     stream = sinks.new_recording()
     rrd = tmp_path / "x.rrd"
@@ -482,7 +484,7 @@ def test_a_truncated_jpeg_mid_run_is_an_error_naming_it_and_the_frames_before_ar
 
 
 def test_jpeg_completeness():
-    ok, data = cv2.imencode(".jpg", np.random.default_rng(0).integers(0, 255, (64, 80, 3), dtype=np.uint8))
+    _, data = cv2.imencode(".jpg", np.random.default_rng(0).integers(0, 255, (64, 80, 3), dtype=np.uint8))
     data = data.tobytes()
     assert _jpeg_complete(data)
     assert _jpeg_complete(data + b"\0" * 100 + b"camera trailer")  # bytes after the end are fine
@@ -531,7 +533,7 @@ def test_a_huge_box_is_refused_before_numpy_overflows(tmp_path, recwarn):
 
 
 def test_too_many_particles_is_refused_before_the_run(tmp_path, monkeypatch):
-    import covviz.resources as resources
+    from covviz import resources
 
     monkeypatch.setattr(resources, "available_memory", lambda: 4 * 10**9)
     code, _, err = run_main(["track", "--particles", "10000000", "--no-progress", "--no-save",
@@ -650,7 +652,7 @@ def test_snapshot_into_an_unwritable_folder_is_one_line(tmp_path, some_rrd):
     ro = tmp_path / "ro"
     ro.mkdir()
     mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m,ro", "tmpfs", str(ro)],
-                             capture_output=True).returncode == 0
+                             capture_output=True, check=False).returncode == 0
     if not mounted:
         if os.geteuid() == 0:
             pytest.skip("root writes through permissions and cannot mount here")
@@ -659,7 +661,7 @@ def test_snapshot_into_an_unwritable_folder_is_one_line(tmp_path, some_rrd):
         code, _, err = run_main(["snapshot", str(some_rrd), "--out", str(ro / "sub" / "shot.png")])
     finally:
         if mounted:
-            subprocess.run(["umount", str(ro)], capture_output=True)
+            subprocess.run(["umount", str(ro)], capture_output=True, check=False)
         ro.chmod(0o700)
     assert code == 2 and "cannot write" in one_error_line(err, "snapshot")
 
