@@ -172,7 +172,9 @@ class ResultWriter:
         self.out_dir = out_dir
         self.extra = extra
         self.period = float(progress_seconds)
-        self.progress_seconds = self.period
+        # The first write comes with the first tracked frame: results of an earlier run under the
+        # same names are replaced at once, not a second later (a kill then would leave them).
+        self.progress_seconds = 0.0
         self.docs: list[dict] = []
         self.saved_frames = 0
         self._failed = False
@@ -180,8 +182,8 @@ class ResultWriter:
 
     def on_progress(self, results) -> None:
         t0 = time.perf_counter()
-        self._save(results)
-        self.progress_seconds = max(self.period, (time.perf_counter() - t0) / self.MAX_SHARE)
+        if self._save(results):
+            self.progress_seconds = max(self.period, (time.perf_counter() - t0) / self.MAX_SHARE)
 
     def on_end(self, results) -> None:
         try:
