@@ -228,9 +228,6 @@ def run_many(
     times = np.zeros((k, n))
     gt = np.full((n, 4), np.nan)
     seeds = list(seeds) if seeds is not None else [None] * k
-    for ob in observers:
-        if hasattr(ob, "on_start"):
-            ob.on_start(sequence, trackers)
     done = 0
     interrupted = False
     stopped_by: BaseException | None = None
@@ -253,8 +250,17 @@ def run_many(
     # Observers that want the results so far, each with its own period (a monotonic deadline).
     periodic = [[ob, time.monotonic() + float(ob.progress_seconds)] for ob in observers
                 if hasattr(ob, "on_progress")]
-    bar = _progress(n, f"{sequence.name}", progress)
+    bar = None
+    started = []
     try:
+        # A stop signal while the observers start (the recorder opening its file) waits until
+        # they all have, so that each of them also gets its on_end.
+        with shielded():
+            for ob in observers:
+                if hasattr(ob, "on_start"):
+                    ob.on_start(sequence, trackers)
+                started.append(ob)
+        bar = _progress(n, f"{sequence.name}", progress)
         for i in range(n):
             frame = sequence.frame(i)
             if frame.gt is not None:
@@ -299,7 +305,7 @@ def run_many(
         if bar is not None:
             bar.close()
         results = results_so_far(interrupted)
-        _end(observers, results, failing=stopped_by if interrupted else None)
+        _end(started, results, failing=stopped_by if interrupted else None)
     return results
 
 
