@@ -9,8 +9,9 @@ Subcommands::
     covviz snapshot RRD       a PNG of a recording in the headless Rerun viewer (a frame, or a sheet around an event)
     covviz events RRD         the events and drift diagnoses of a recording
 
-Exit codes: 0 success, 1 unexpected error, 2 bad input (the one-line message
-says what to fix), 130 interrupted.
+Exit codes: 0 success, 1 unexpected error, 2 bad input or an output that
+cannot be written (the one-line message says what to fix), 130 interrupted by
+Ctrl-C, 143 stopped by SIGTERM (both keep the results of the frames done).
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import math
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -25,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from covviz.errors import InputError
-from covviz.sequences import open_sequence
+from covviz.sequences import IMAGE_EXTENSIONS, open_sequence
 
 log = logging.getLogger("covviz")
 
@@ -48,6 +51,12 @@ def parse_box(text: str) -> np.ndarray:
         raise argparse.ArgumentTypeError(f"--box must be 4 numbers x,y,w,h; got {text!r}") from None
     if len(vals) != 4:
         raise argparse.ArgumentTypeError(f"--box must be 4 numbers x,y,w,h; got {text!r}")
+    parts = [v for v in text.replace(" ", ",").split(",") if v]
+    for name, v, raw in zip("xywh", vals, parts):
+        if math.isnan(v):
+            raise argparse.ArgumentTypeError(f"{name} is not a number ({raw!r}); give 4 numbers x,y,w,h in pixels")
+        if math.isinf(v):
+            raise argparse.ArgumentTypeError(f"{name}={raw} is not a finite number; give x,y,w,h in pixels")
     return np.array(vals)
 
 
@@ -130,7 +139,7 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
         "likelihood), ipca, identity, csrt, kcf, mil, mosse, medianflow, tld",
     )
     p.add_argument("--particles", type=positive_int, help="number of particles (default: the tracker's own)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0): same seed, same boxes")
+    p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0): same seed, same boxes")
     p.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
     p.add_argument("--out", type=Path, default=Path("runs"), help="results folder (default: runs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -184,7 +193,28 @@ RECORDING_BYTES_PER_FRAME = 40_000
 RECORDING_MARGIN_BYTES = 20_000_000
 
 
-def _check_recording_path(path: Path, n_frames: int, n_trackers: int) -> None:
+def _mkdirs(path: Path, created: list[Path] | None) -> None:
+    """``mkdir -p path``, noting in ``created`` (top first) the folders it made, for :func:`_remove_empty`."""
+    missing = []
+    p = Path(path)
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    Path(path).mkdir(parents=True, exist_ok=True)
+    if created is not None:
+        created.extend(reversed(missing))
+
+
+def _remove_empty(created: list[Path]) -> None:
+    """Remove the folders a command made that are still empty (an error before the run wrote anything)."""
+    for d in reversed(created):
+        try:
+            d.rmdir()
+        except OSError:
+            pass
+
+
+def _check_recording_path(path: Path, n_frames: int, n_trackers: int, created: list[Path] | None = None) -> None:
     """Fail before tracking if the recording cannot be written (one-line UsageError)."""
     import shutil
 
@@ -194,7 +224,7 @@ def _check_recording_path(path: Path, n_frames: int, n_trackers: int) -> None:
         raise UsageError(f"--save {path}: is a folder; give a file name ending in .rrd")
     parent = path.parent if str(path.parent) else Path(".")
     try:
-        parent.mkdir(parents=True, exist_ok=True)
+        _mkdirs(parent, created)
         probe = parent / f".covviz-write-test-{path.stem}"
         with open(probe, "wb") as fh:
             fh.write(b"\0" * 65536)
@@ -249,7 +279,9 @@ def _print_diagnosis(found: dict | None) -> None:
         print("  frames off track: " + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items()))
 
 
-def _recording_observers(args, seq, n_frames: int, diagnoser) -> tuple[list, Path | None]:
+def _recording_observers(
+    args, seq, n_frames: int, diagnoser, created: list[Path] | None = None
+) -> tuple[list, Path | None]:
     """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file.
 
     Without a recording, the drift diagnosis runs on its own background thread.
@@ -263,7 +295,7 @@ def _recording_observers(args, seq, n_frames: int, diagnoser) -> tuple[list, Pat
     if save is None and not live:
         return [BackgroundObserver(diagnoser)], None
     if save is not None:
-        _check_recording_path(save, n_frames, len(args.trackers))
+        _check_recording_path(save, n_frames, len(args.trackers), created)
     _check_viewer(args)
     from covviz.viz.logger import LoggerConfig, RerunLogger
     from covviz.viz.sinks import BATCH_SECONDS, BATCH_SECONDS_LIVE, attach_sinks, new_recording
@@ -285,9 +317,9 @@ def _recording_observers(args, seq, n_frames: int, diagnoser) -> tuple[list, Pat
     return [BackgroundObserver(RerunLogger(stream, config, run_info=info, diagnoser=diagnoser))], save
 
 
-def _check_out_dir(out: Path) -> None:
+def _check_out_dir(out: Path, created: list[Path] | None = None) -> None:
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        _mkdirs(out, created)
         probe = out / ".covviz-write-test"
         probe.write_text("")
         probe.unlink()
@@ -323,44 +355,112 @@ def _warm_kernels(trackers) -> None:
         log.debug("kernels ready in %.1f s", took)
 
 
+def _check_frames(seq, n_frames: int) -> None:
+    """Fail before tracking if a numbered frame is missing among the frames to track.
+
+    Frames are matched to ground truth by their number (img/0015.jpg is row 15);
+    tracking across a gap would score every later frame against the wrong row,
+    and the OTB results format has no way to skip a frame.
+    """
+    missing = [i for i in getattr(seq, "missing", ()) if i < n_frames]
+    if missing:
+        first = seq.files[missing[0]]
+        more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
+        raise UsageError(
+            f"{first}: frame missing{more} (frames are matched to the ground truth by number); restore it, "
+            f"or track the {missing[0]} frames before it with --max-frames {missing[0]}"
+        )
+
+
+def _recorded(args) -> bool:
+    return not args.no_save or bool(args.spawn or args.connect or args.serve_web)
+
+
+def _check_memory(args, frame_shape) -> None:
+    """Fail before tracking if ``--particles`` needs more memory than the machine has free."""
+    if args.particles is None:
+        return
+    from covviz.resources import available_memory, run_memory
+    from covviz.trackers import STOCHASTIC
+
+    n = sum(name in STOCHASTIC for name in args.trackers)
+    avail = available_memory()
+    if not n or avail is None:
+        return
+    rec = _recorded(args)
+    need = run_memory(args.particles, frame_shape, n, rec)
+    if need > avail:
+        fixed = run_memory(0, frame_shape, n, rec)
+        most = max(0, int((avail - fixed) / ((need - fixed) / args.particles)))
+        raise UsageError(
+            f"--particles {args.particles} needs about {need / 1e9:.1f} GB of memory and {avail / 1e9:.1f} GB is "
+            f"available; use at most about {most} particles" + (" or fewer trackers" if n > 1 else "")
+        )
+
+
+def _recording_complete(path: Path) -> bool:
+    from covviz.viz.sinks import recording_complete
+
+    return bool(recording_complete(path))
+
+
+def _q(path) -> str:
+    """A path as a shell would need it (quoted if it has spaces)."""
+    return shlex.quote(str(path))
+
+
 def _track(args) -> int:
+    from covviz.diagnosis import Diagnoser
     from covviz.trackers.base import check_init_box
 
     seq = open_sequence(args.sequence, box=args.box)
     if len(seq) < 2:
         raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
+    n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
+    _check_frames(seq, n_frames)
     first = seq.frame(0)  # fail early on an unreadable first frame or a bad box
     check_init_box(seq.init_box, first.image.shape)
-    _check_out_dir(args.out)
-    trackers = _make_trackers(args.trackers, args.seed, args.particles)
+    _check_memory(args, first.image.shape)
+    created: list[Path] = []  # folders made by the checks: removed again if nothing is written
+    try:
+        _check_out_dir(args.out, created)
+        trackers = _make_trackers(args.trackers, args.seed, args.particles)
+        diagnoser = Diagnoser()
+        # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
+        recorders, rrd = _recording_observers(args, seq, n_frames, diagnoser, created)
+    except BaseException:
+        _remove_empty(created)
+        raise
     _warm_kernels(trackers)
     with contextlib.ExitStack() as stack:  # the trackers' threads end with the run
         for tr in trackers:
             if hasattr(tr, "close"):
                 stack.callback(tr.close)
-        return _run_tracking(args, seq, trackers)
+        return _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created)
 
 
-def _run_tracking(args, seq, trackers) -> int:
-    from covviz.diagnosis import Diagnoser
-    from covviz.results import save_result
-    from covviz.runner import ResultCollector, run_many
-
-    # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
-    n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
-    diagnoser = Diagnoser()
-    recorders, rrd = _recording_observers(args, seq, n_frames, diagnoser)
+def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> int:
+    from covviz.metrics import nothing_to_score
+    from covviz.results import ResultWriter
+    from covviz.runner import FreeSpaceGuard, ResultCollector, run_many
+    from covviz.signals import exit_code
 
     def extra(j: int) -> dict:
-        """What the drift diagnosis found for tracker ``j``, for its results JSON."""
+        """What the drift diagnosis found for tracker ``j`` so far, for its results JSON."""
         if j >= len(diagnoser.states):
             return {}
         return {"diagnosis": diagnoser.report(j), "diagnosis_config": diagnoser.config.as_dict()}
 
+    # The results are on disk while the run goes (every second, and at the end): what a kill, a
+    # signal or a full disk leaves is the frames done. The writer ends after the recorder (whose
+    # thread also runs the drift diagnosis), so the final files hold the whole diagnosis.
+    writer = ResultWriter(args.out, extra=extra)
+    guard = FreeSpaceGuard([args.out, *([rrd] if rrd is not None else [])])
     collector = ResultCollector()
-    observers = [*getattr(args, "observers", []), *recorders, collector]
+    observers = [*getattr(args, "observers", []), guard, *recorders, writer, collector]
+    where = args.out / seq.name
     t0 = time.perf_counter()
-    interrupted = False
+    code = 0
     try:
         results = run_many(
             trackers,
@@ -370,40 +470,53 @@ def _run_tracking(args, seq, trackers) -> int:
             progress=not args.no_progress,
             seeds=[args.seed] * len(trackers),
         )
-    except Exception:
-        # An error inside a tracker: keep what was done (the recording already
-        # holds those frames), then report the error.
-        done = collector.results
-        if done and len(done[0].boxes) > 1:
-            for j, res in enumerate(done):
-                save_result(res, args.out, extra(j))
-            log.warning("results of the %d frames before the error are in %s/%s/", len(done[0].boxes), args.out,
-                        seq.name)
-        raise
-    except KeyboardInterrupt:
-        interrupted = True
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (covviz.signals): keep what was done
+        code = exit_code(exc)
+        for note in getattr(exc, "__notes__", []):  # an observer that could not finish (covviz.runner)
+            log.warning("%s", note)
         results = collector.results
-        log.warning("interrupted: the results hold the %d frames done so far", len(results[0].boxes) if results else 0)
+        log.warning("interrupted: the results hold the %d frames done so far", writer.saved_frames)
         if rrd is not None:
-            print(f"recording (up to the interruption) in {rrd}   open it with: rerun {rrd}")
-        if not results or not len(results[0].boxes):
-            return EXIT_INTERRUPTED
+            print(f"recording (up to the interruption) in {rrd}   open it with: rerun {_q(rrd)}")
+        if not writer.docs:
+            _remove_empty(created)
+            return code
+    except InputError as exc:
+        # A broken frame or a full disk: one line from main (exit 2) that also says what was kept
+        # (the observers' notes - the recording cut short by the same full disk - are in it).
+        kept = [f"the results of the {writer.saved_frames} frames before it in {where}/"] if writer.saved_frames else []
+        if rrd is not None:
+            kept.append(f"the recording {_q(rrd)}" if _recording_complete(rrd) else
+                        f"the recording {_q(rrd)} cut short ('rerun rrd migrate {_q(rrd)}' completes it)")
+        if kept:
+            exc.args = (f"{exc} (kept: {'; '.join(kept)})",)
+        exc.__notes__ = []
+        _remove_empty(created)
+        raise
+    except BaseException:
+        # A bug in a tracker (traceback, exit 1): the results of the frames before it are on disk.
+        if writer.saved_frames:
+            log.warning("results of the %d frames before the error are in %s/", writer.saved_frames, where)
+        _remove_empty(created)
+        raise
     wall = time.perf_counter() - t0
-    for j, res in enumerate(results):
-        doc = save_result(res, args.out, extra(j))
+    for res, doc in zip(results, writer.docs):
         m = doc["metrics"]
+        head = f"{res.sequence} · {res.tracker} (seed {res.seed}): {len(res.boxes)} frames, {res.fps:.1f} fps"
+        if nothing_to_score(res.groundtruth):
+            print(f"{head}\n  nothing to score: no ground truth after the first frame, whose box is the one given")
+            continue
         print(
-            f"{res.sequence} · {res.tracker} (seed {res.seed}): {len(res.boxes)} frames, "
-            f"{res.fps:.1f} fps\n"
+            f"{head}\n"
             f"  success AUC {m['success_auc']:.3f}   P@20 {m['precision_20']:.3f}   "
             f"r_on_track {m['r_on_track']:.3f}   rms_on_track {m['rms_on_track']:.3f}   "
             f"mean IoU {m['mean_iou']:.3f}   ({m['n_skipped']} frames without ground truth skipped)"
         )
         _print_diagnosis(doc.get("diagnosis"))
-    print(f"results in {args.out}/{seq.name}/  ({wall:.1f} s wall)")
-    if rrd is not None and not interrupted:
-        print(f"recording in {rrd}   open it with: rerun {rrd}")
-    return EXIT_INTERRUPTED if interrupted else 0
+    print(f"results in {where}/  ({wall:.1f} s wall)")
+    if rrd is not None and not code:
+        print(f"recording in {rrd}   open it with: rerun {_q(rrd)}")
+    return code
 
 
 # --------------------------------------------------------------------------- #
@@ -587,7 +700,7 @@ def add_mds_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--method", choices=("classical", "smacof"), default="classical",
                    help="MDS: classical (default) or SMACOF (started from the classical solution)")
     p.add_argument("--particles", type=positive_int, help="particles of the tracker for figure (b)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
     p.add_argument("--png-dir", type=Path, default=Path("recordings"), help="folder for the PNGs (default recordings/)")
     p.add_argument("--no-png", action="store_true", help="write no PNGs")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -716,6 +829,8 @@ def cmd_snapshot(args) -> int:
     if not args.recording.is_file():
         raise UsageError(f"{args.recording}: no such recording")
     size = parse_size(args.size)
+    created: list[Path] = []
+    _check_png_path(args.out, created)
     try:
         if args.event is None:
             out = snapshot(args.recording, args.out, frame=args.frame, size=size, timeline=args.timeline,
@@ -738,7 +853,11 @@ def cmd_snapshot(args) -> int:
                       f"{ev['cause'].replace('_', ' ')}) - {ev['tracker']}" for f in frames]
             out = contact_sheet([p for p, _ in shots], labels, args.out)
     except SnapshotError as exc:
+        _remove_empty(created)
         raise UsageError(str(exc)) from None
+    except BaseException:
+        _remove_empty(created)
+        raise
     print(f"sheet: {out} (frames {', '.join(map(str, frames))} around event {args.event}: {ev['text'][:100]})")
     return 0
 
@@ -799,6 +918,23 @@ def cmd_events(args) -> int:
     return 0
 
 
+def _check_png_path(out: Path, created: list[Path]) -> None:
+    """``snapshot --out``: a PNG file that can be written (not a folder, not under a file)."""
+    if out.is_dir():
+        raise UsageError(f"--out {out}: is a folder; give a file name ending in .png")
+    if out.suffix.lower() != ".png":
+        raise UsageError(f"--out {out}: a screenshot is a PNG; give a file name ending in .png")
+    parent = out.parent if str(out.parent) else Path(".")
+    try:
+        _mkdirs(parent, created)
+        probe = parent / f".covviz-write-test-{out.stem}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        _remove_empty(created)
+        raise UsageError(f"cannot write {out}: {exc.strerror or exc}; choose another --out") from None
+
+
 # --------------------------------------------------------------------------- #
 # entry point
 # --------------------------------------------------------------------------- #
@@ -844,24 +980,46 @@ def _glue_negative_values(argv: list[str]) -> list[str]:
     return out
 
 
+def _unquoted_glob(parser: argparse.ArgumentParser, args, extra: list[str]) -> None:
+    """Unrecognised arguments: argparse's error, with a hint when the shell expanded an unquoted glob."""
+    images = [a for a in [getattr(args, "sequence", None), *extra]
+              if a and Path(a).suffix.lower() in IMAGE_EXTENSIONS and Path(a).is_file()]
+    if getattr(args, "command", None) in ("track", "mds") and len(images) > 1:
+        pattern = str(Path(images[0]).parent / ("*" + Path(images[0]).suffix))
+        print(
+            f"covviz {args.command}: error: got {len(images)} image files ({images[0]} {images[1]} …): the shell "
+            f"expanded an unquoted glob; quote it: covviz {args.command} {_q(pattern)} --box x,y,w,h",
+            file=sys.stderr,
+        )
+        raise SystemExit(EXIT_BAD_INPUT)
+    parser.error(f"unrecognized arguments: {' '.join(extra)}")
+
+
 def main(argv: list[str] | None = None) -> int:
+    from covviz.signals import exit_code, stop_signals
+
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = parser.parse_args(_glue_negative_values(argv))
+    args, extra = parser.parse_known_args(_glue_negative_values(argv))
+    if extra:
+        _unquoted_glob(parser, args, extra)
     args.argv = argv  # written into recordings
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s: %(message)s"
     )
     try:
-        return int(args.func(args) or 0)
+        # SIGTERM stops a run as Ctrl-C does (results of the frames done, a valid recording),
+        # with exit code 143; a second signal never cuts short the saving of the first.
+        with stop_signals():
+            return int(args.func(args) or 0)
     except InputError as exc:
         # Validation of what the user gave (covviz.errors); any other exception, a ValueError
         # raised by a tracker in the middle of a run included, is a bug: traceback, exit 1.
         print(f"covviz {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         print(f"covviz {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return exit_code(exc)
 
 
 if __name__ == "__main__":

@@ -34,7 +34,7 @@ from covviz import __version__
 from covviz.diagnosis import Diagnoser, DiagnosisConfig
 from covviz.embedding import AlignedMDS, distance_matrix, stress1
 from covviz.features import pose_corners
-from covviz.metrics import center_error, evaluate, iou
+from covviz.metrics import center_error, evaluate, iou, nothing_to_score
 from covviz.observation import ObservationModel, box_to_pose
 from covviz.records import FrameRecord, frame_number
 from covviz.spd import logm
@@ -65,7 +65,7 @@ from covviz.viz.palette import (
     weight_levels,
     weight_lut,
 )
-from covviz.viz.sinks import FLUSH_TIMEOUT
+from covviz.viz.sinks import FLUSH_TIMEOUT, close_stream
 
 __all__ = ["LoggerConfig", "RerunLogger"]
 
@@ -888,7 +888,7 @@ class RerunLogger:
                 "|---|---|---|---|---|---|---|---|---|",
             ]
             for s, r in zip(self._states, results):
-                if len(r.boxes):
+                if len(r.boxes) and not nothing_to_score(r.groundtruth):
                     m = evaluate(r.boxes, r.groundtruth)
                     auc, p20, miou = f"{m.success_auc:.3f}", f"{m.precision_20:.3f}", f"{m.mean_iou:.3f}"
                 else:
@@ -918,14 +918,10 @@ class RerunLogger:
                 self.close()
 
     def close(self) -> None:
-        """Flush everything logged so far and disconnect the stream (finalises an ``.rrd`` file).
+        """Send everything logged so far and disconnect the stream (finalises an ``.rrd`` file).
 
         A live viewer that went away cannot take the rest: that is a warning, not an error
-        (the file sink, if any, has everything).
+        (the file sink, if any, has everything). A file cut short (a full disk) raises
+        :class:`~covviz.errors.WriteError` (see :func:`~covviz.viz.sinks.close_stream`).
         """
-        try:
-            self.stream.flush(timeout_sec=FLUSH_TIMEOUT)
-        except RuntimeError as exc:
-            log.warning("the recording could not be fully sent (%s); is the viewer still running?", exc)
-        finally:
-            self.stream.disconnect()
+        close_stream(self.stream, timeout=FLUSH_TIMEOUT)
