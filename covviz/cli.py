@@ -97,10 +97,10 @@ examples:
   covviz track                                   # the embedded synthetic sequence
   covviz track synthetic:occlusion               # a failure on purpose at a known frame; also distractor,
                                                  #   illumination, fast-motion, scale, appearance
-  covviz track ../shared/sequences/Car4 --seed 1 # an OTB folder
-  covviz track clip.mp4 --box 120,80,40,60       # a video (or 'frames/*.png'): give the first box
-  covviz track Car4 --trackers manifold,ipca     # several trackers side by side on the same frames
-  covviz track Couple --spawn                    # watch it live in a Rerun viewer (and save it)
+  covviz track path/to/Car4 --seed 1             # an OTB folder (img/0001.jpg... + groundtruth_rect.txt)
+  covviz track clip.mp4 --box 120,80,40,60       # a video (or 'frames/*.png', quoted): give the first box
+  covviz track path/to/Car4 --trackers manifold,ipca   # several trackers side by side on the same frames
+  covviz track path/to/Couple --spawn            # watch it live in a Rerun viewer (and save it)
   covviz track --mds-every 5 --save my.rrd       # denser template-cloud pictures, another file
 
 Every run writes a Rerun recording (default recordings/SEQUENCE-TRACKERS-sSEED.rrd;
@@ -654,11 +654,14 @@ def cmd_report(args) -> int:
 MDS_EPILOG = """\
 examples:
   covviz mds                                       # the synthetic default (frames 1, 101, 201)
-  covviz mds ../shared/sequences/Car4              # frames 1, 101, 201, 501 of Car4
-  covviz mds Car4 --frames 1,51,101 --png-dir docs/img
+  covviz mds path/to/Car4                          # frames 1, 101, 201, 501 of Car4
+  covviz mds path/to/Car4 --frames 1,51,101 --png-dir docs/img
+  covviz mds path/to/Car4 --save car4-mds.rrd --no-png
 
-Writes recordings/SEQUENCE-mds.rrd (open with 'rerun FILE') and two PNGs:
-SEQUENCE-mds-separation.png (target vs background) and SEQUENCE-mds-random-walk.png.
+Writes recordings/SEQUENCE-mds.rrd (--save another file, --no-save none; open it with
+'rerun FILE') and two PNGs in --png-dir (default recordings/): SEQUENCE-mds-separation.png
+(target vs background) and SEQUENCE-mds-random-walk.png. Frames are 1-based (frame 1 is
+img/0001.jpg), as everywhere in covviz.
 """
 
 
@@ -746,17 +749,16 @@ def _mds(args) -> int:
     if save is not None or args.spawn or args.connect or args.serve_web:
         from covviz.viz.blueprint import mds_blueprint
         from covviz.viz.mds_figures import log_figures
-        from covviz.viz.sinks import attach_sinks, new_recording
+        from covviz.viz.sinks import attach_sinks, close_stream, new_recording
 
         stream = new_recording()
         attach_sinks(stream, save=save, spawn=args.spawn, connect=args.connect, serve_web=args.serve_web)
         stream.send_blueprint(mds_blueprint())
         stream.send_recording_name(f"{safe} · MDS figures")
         log_figures(stream, sep, walk, seq.name)
-        stream.flush(timeout_sec=30.0)
-        stream.disconnect()
+        close_stream(stream, timeout=30.0)  # flushes, disconnects, checks the file (a full disk is one line)
         if save is not None:
-            print(f"recording in {save}   open it with: rerun {save}")
+            print(f"recording in {save}   open it with: rerun {_q(save)}")
     if not args.no_png:
         from covviz.viz.mds_figures import save_pngs
 
@@ -946,11 +948,12 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="""\
 examples:
   covviz track                                  # the synthetic default: metrics, runs/, recordings/
-  covviz track ../shared/sequences/Car4 --trackers manifold,ipca --seed 1
-  rerun recordings/Car4-manifold-ipca-s1.rrd    # scrub it frame by frame in the viewer
+  covviz track path/to/Car4 --trackers manifold,ipca --seed 1
+  rerun 'recordings/Car4-manifold+ipca-s1.rrd'  # scrub it frame by frame in the viewer
+  covviz events 'recordings/Car4-manifold+ipca-s1.rrd'   # the losses and their diagnosed causes
   covviz snapshot recordings/synthetic-manifold-s0.rrd --frame 120 --out shot.png
-  covviz mds ../shared/sequences/Car4           # the paper's manifold MDS figures
-  covviz bench ../shared/sequences --trackers manifold,ipca,csrt --seeds 3 --jobs 2
+  covviz mds path/to/Car4                       # the paper's manifold MDS figures
+  covviz bench path/to/sequences --trackers manifold,ipca,csrt --seeds 3 --jobs 2
   covviz report runs/bench --out docs/results.md
 
 Run 'covviz COMMAND --help' for the options and examples of each command.""",
