@@ -783,6 +783,11 @@ class RerunLogger:
             record, s.initial_template, target, background, slots, cfg.top_k, cfg.mds_max_templates, s.rng
         )
         if len(cloud.matrices) < 3:
+            # Nothing to embed: say so in the picture, rather than leave it empty (or stale).
+            for root in (p.cloud, p.cloud_zoom):
+                rec.log(f"{root}", rr.Clear(recursive=True))
+                rec.log(f"{root}/note", rr.TextLog(f"frame {frame_number(frame.index)}: only {len(cloud.matrices)} "
+                                                   "matrices (no templates or no target): no picture", level="WARN"))
             return
         D = distance_matrix(cloud.matrices)
         i = int(frame.index)

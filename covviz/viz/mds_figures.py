@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from covviz.embedding import distance_matrix, embed
+from covviz.errors import InputError
 from covviz.metrics import iou, valid_rows
 from covviz.observation import ObservationModel, box_to_pose
 from covviz.spd import expm
@@ -173,7 +174,7 @@ def separation_data(
     rng = np.random.default_rng([cfg.seed, 1])
     valid = np.flatnonzero(valid_rows(sequence.groundtruth))
     if len(valid) < 2:
-        raise ValueError(f"{sequence.name}: figure (a) needs ground truth on at least 2 frames")
+        raise InputError(f"{sequence.name}: figure (a) needs ground truth on at least 2 frames")
     model = model or default_model(sequence)
     stride = max(1, int(np.ceil(len(valid) / cfg.max_target)))
     picked = valid[::stride]
@@ -249,15 +250,27 @@ def random_walk_data(
 
     frames = sorted({int(f) for f in cfg.frames if int(f) <= len(sequence)})
     if not frames:
-        raise ValueError(
+        raise InputError(
             f"{sequence.name}: none of the frames {list(cfg.frames)} is in the sequence "
             f"({len(sequence)} frames)"
         )
+    dropped = sorted({int(f) for f in cfg.frames} - set(frames))
+    if dropped:
+        log.warning("%s: frames %s are past the end (%d frames); the random walk shows %s", sequence.name,
+                    ", ".join(map(str, dropped)), len(sequence), ", ".join(map(str, frames)))
     col = _WalkCollector({f - 1 for f in frames} | {0}, cfg)
     with make(n_particles=cfg.n_particles, rng=np.random.default_rng([cfg.seed, 3])) as tracker:
         run(tracker, sequence, [col], max_frames=max(frames), progress=progress, seed=cfg.seed)
+    no_target = [f for f in frames if not any(k == "target" and fr == f for k, fr in zip(col.kinds, col.frames))]
+    if no_target:
+        log.warning("%s: no ground truth at frames %s: the figure has no target (red) there", sequence.name,
+                    ", ".join(map(str, no_target)))
     M = np.concatenate(col.mats)
-    X = embed(distance_matrix(M), cfg.method)
+    D = distance_matrix(M)
+    if not np.any(D > 0):
+        raise InputError(f"{sequence.name}: every template and descriptor of the random walk is the same matrix; "
+                         "there is nothing to draw (a constant image?)")
+    X = embed(D, cfg.method)
     return RandomWalk(X, np.array(col.kinds), np.array(col.frames), col.model)
 
 
