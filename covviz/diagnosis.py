@@ -67,7 +67,7 @@ ON_TRACK_IOU = 0.5
 #: A particle has reached the truth when its box has at least this IoU with the ground-truth box.
 NEAR_IOU = 0.5
 #: Templates of the cloud scored at the truth and the estimate (an evenly strided subset plus the top ones).
-CLOUD_TEMPLATES = 150
+CLOUD_TEMPLATES = 64
 #: The heaviest templates always among them.
 CLOUD_TOP = 20
 #: Frames of evidence kept per tracker (bounds memory; a diagnosis looks back at most this far).
@@ -742,9 +742,11 @@ class Diagnoser:
             poses = np.stack([truth_pose, box_to_pose(box, probe.base_wh)])
             C, Q = probe.quadrant_descriptors(pg, poses)
             kw["truth_C"], kw["truth_Q"], kw["estimate_C"] = C[0], Q[0], C[1]
-            past = next((g for g, b in reversed(s.past) if iou(b[None], gt[None])[0] <= cfg.scene_iou), None)
-            if past is not None:
-                kw["scene_C"] = probe.descriptors(past, truth_pose[None])[0]
+            if s.past:
+                boxes = np.stack([b for _, b in s.past])
+                apart = np.flatnonzero(iou(boxes, np.broadcast_to(gt, boxes.shape)) <= cfg.scene_iou)
+                if len(apart):  # the latest frame where the target stood elsewhere
+                    kw["scene_C"] = probe.descriptors(s.past[int(apart[-1])][0], truth_pose[None])[0]
             s.past.append((pg, gt))
         model = s.model
         if model is not None and rec.estimate_template is not None and rec.pose is not None:

@@ -43,7 +43,6 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from covviz import kernels
 from covviz.descriptor import covariance, quadrant_covariances
 from covviz.features import N_FEATURES, patch_features, warp_patches
 from covviz.particles import log_likelihood
@@ -288,19 +287,19 @@ class ObservationModel:
     @property
     def compiled(self) -> bool:
         """Whether this model observes with the compiled kernels (``jit`` and available)."""
-        return self.jit and kernels.JIT_ENABLED
+        return self.jit and _kernels().JIT_ENABLED
 
     def _observe_quadrants(self, gray: np.ndarray, poses: np.ndarray) -> np.ndarray:
         return self.quadrant_descriptors(gray, poses)[1]
 
     def _template_distances(self, L: np.ndarray, C: np.ndarray) -> np.ndarray:
         if self.compiled:
-            return kernels.template_distances_fast(L, np.broadcast_to(C, L.shape))
+            return _kernels().template_distances_fast(L, np.broadcast_to(C, L.shape))
         return distance_riemann_log(L, C)
 
     def _quadrant_distances(self, Q: np.ndarray) -> np.ndarray:
         if self.compiled:
-            return kernels.quadrant_distances_fast(Q, self.quadrant_reference, self.quadrant_logdet)
+            return _kernels().quadrant_distances_fast(Q, self.quadrant_reference, self.quadrant_logdet)
         return distance_jbld(self.quadrant_reference, Q, logdet_a=self.quadrant_logdet)
 
     def _chunk(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
@@ -328,16 +327,16 @@ class ObservationModel:
     def _chunk_compiled(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
         """:meth:`_chunk` with the compiled kernels: warp, features and covariance in one (timed as ``features``)."""
         t0 = time.perf_counter()
-        C, Q = kernels.warp_descriptors_fast(
+        C, Q = _kernels().warp_descriptors_fast(
             gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize,
             self.quadrants,
         )
         t1 = time.perf_counter()
         d = q = None
         if templates is not None:
-            d = kernels.template_distances_fast(templates, C)
+            d = _kernels().template_distances_fast(templates, C)
             if Q is not None:
-                q = kernels.quadrant_distances_fast(Q, self.quadrant_reference, self.quadrant_logdet)
+                q = _kernels().quadrant_distances_fast(Q, self.quadrant_reference, self.quadrant_logdet)
         t2 = time.perf_counter()
         return C, Q, d, q, (0.0, t1 - t0, 0.0, t2 - t1)
 
@@ -424,7 +423,7 @@ class ObservationModel:
         """
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
         if self.compiled:
-            return kernels.warp_descriptors_fast(
+            return _kernels().warp_descriptors_fast(
                 gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize, True
             )
         P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
@@ -476,6 +475,14 @@ class ObservationModel:
     def log_likelihood(self, d_eff: np.ndarray) -> np.ndarray:
         """``-d_eff² / 2σ²``, the log-likelihood up to a constant (:func:`covviz.particles.log_likelihood`)."""
         return log_likelihood(d_eff, self.likelihood_sigma)
+
+
+def _kernels():
+    """:mod:`covviz.kernels`, imported on first use: commands that never observe (``report``,
+    ``events``, every ``--help``) do not pay for importing numba."""
+    from covviz import kernels
+
+    return kernels
 
 
 def _downsampled_shape(H: int, W: int, step: int) -> tuple[int, int]:
