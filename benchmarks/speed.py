@@ -1,11 +1,14 @@
 """Speed of the trackers' update(), side by side in one process.
 
-Prints, for the manifold tracker at 300 / 600 / 1000 particles, with its
-quadrant term (the default) and without it (the paper's likelihood), the mean
-per-frame time of ``update()`` broken down by stage (propagate, warp, features,
-covariance, distances, weights, resample), its frames per second, and the ratio
-to OpenCV's CSRT (and the IPCA baseline, when available) run on the same
-frames in the same process. Frames are decoded once, before timing.
+Prints the machine (CPU model, cores, load), then, for the manifold tracker at
+300 / 600 / 1000 particles, with its quadrant term (the default) and without it
+(the paper's likelihood), with the compiled kernels and/or the numpy path, the
+mean per-frame time of ``update()`` broken down by stage (propagate, warp,
+features, covariance, distances, weights, estimate, resample), its frames per
+second, and the ratio to OpenCV's CSRT (and the IPCA baseline) run on the same
+frames in the same process (frames decoded once, before timing). Last, the
+whole ``covviz track --no-save`` process of manifold and CSRT, alternating:
+the rate a user sees, start to end.
 
 Usage::
 
@@ -13,6 +16,8 @@ Usage::
     python benchmarks/speed.py ../shared/sequences/Car1 --frames 200
     python benchmarks/speed.py --threads 1           # pin BLAS/OpenCV to one thread
     python benchmarks/speed.py --quadrants on         # only the default tracker
+    python benchmarks/speed.py --jit both             # with and without the compiled kernels
+    python benchmarks/speed.py ../shared/sequences/Car4 --frames 199 --particles 600 --whole 5
 
 These machines are noisy: compare ratios measured side by side in one run, and
 use ``--repeat`` to take the best of several passes.
@@ -26,6 +31,23 @@ import sys
 import time
 
 import numpy as np
+
+
+def machine() -> str:
+    """One line naming the machine: CPU model, logical cores, load average (for absolute figures)."""
+    model = "unknown CPU"
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        import platform
+
+        model = platform.processor() or model
+    load = ", load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg()) if hasattr(os, "getloadavg") else ""
+    return f"machine: {model}, {os.cpu_count()} logical cores{load}"
 
 
 def _set_threads(n: int | None) -> None:
@@ -72,11 +94,18 @@ def main(argv=None) -> int:
     ap.add_argument("--quadrants", choices=("both", "on", "off"), default="both",
                     help="time the tracker with its quadrant term (on, the default tracker), without it "
                          "(off, the paper's likelihood) or both, side by side (default both)")
+    ap.add_argument("--whole", type=int, default=3, metavar="K",
+                    help="also time the whole 'covviz track SEQ --max-frames N --no-save' process of manifold and "
+                         "csrt, K times each, alternating (0: skip; default 3)")
+    ap.add_argument("--jit", choices=("on", "off", "both"), default="on",
+                    help="time the tracker with the compiled kernels (on, the default when numba is installed), "
+                         "with the numpy path (off) or both, side by side (default on)")
     args = ap.parse_args(argv)
     _set_threads(args.threads)
 
     import cv2
 
+    from covviz import kernels
     from covviz.sequences import open_sequence
     from covviz.trackers import make_tracker
     from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
@@ -86,8 +115,16 @@ def main(argv=None) -> int:
     frames = [seq.frame(i).image for i in range(n)]
     box = seq.init_box
     H, W = frames[0].shape[:2]
+    print(machine())
     print(f"sequence {seq.name}: {W}x{H}, {n - 1} timed frames, best of {args.repeat}; "
           f"{os.cpu_count()} cpus, OpenCV threads {cv2.getNumThreads()}, observe threads {args.observe_threads}")
+    jits = {"on": (True,), "off": (False,), "both": (False, True)}[args.jit]
+    if True in jits:
+        if not kernels.JIT_ENABLED:
+            print("  (the compiled kernels are disabled: COVVIZ_NO_JIT=1 or numba missing)")
+            jits = (False,)
+        else:
+            kernels.warmup(lambda: print("  compiling kernels (once)..."))
 
     peers = {}
     for name in ("csrt", "ipca"):
@@ -99,27 +136,60 @@ def main(argv=None) -> int:
             continue
         peers[name] = time_tracker(make, frames, box, args.repeat)[0]
 
-    stage_names = ("propagate", "warp", "features", "covariance", "distances", "weights", "resample")
-    header = f"{'quadrants':>9} {'particles':>9} {'ms/frame':>9} {'fps':>7} " + " ".join(f"{s:>10}" for s in stage_names)
+    stage_names = ("propagate", "warp", "features", "covariance", "distances", "weights", "estimate", "resample")
+    header = f"{'quadrants':>9} {'jit':>4} {'particles':>9} {'ms/frame':>9} {'fps':>7} "
+    header += " ".join(f"{s:>10}" for s in stage_names)
     header += "".join(f" {'x ' + p:>8}" for p in peers)
     print("\nmanifold tracker, mean ms per update() by stage")
     print(header)
     variants = {"both": (True, False), "on": (True,), "off": (False,)}[args.quadrants]
     for k in (int(v) for v in args.particles.split(",")):
         for quad in variants:
-            cfg = ManifoldConfig(n_particles=k, threads=args.observe_threads, quadrants=quad)
-            dt, st = time_tracker(lambda cfg=cfg: ManifoldTracker(cfg, rng=0), frames, box, args.repeat)
-            _row(k, quad, dt, st, stage_names, peers)
+            for jit in jits:
+                cfg = ManifoldConfig(n_particles=k, threads=args.observe_threads, quadrants=quad, jit=jit)
+                dt, st = time_tracker(lambda cfg=cfg: ManifoldTracker(cfg, rng=0), frames, box, args.repeat)
+                _row(k, quad, jit, dt, st, stage_names, peers)
     for p, pt in peers.items():
         print(f"{p}: {1e3 * pt:.2f} ms/frame, {1 / pt:.1f} fps")
+    if args.whole:
+        whole_process(args.sequence, n, args.whole)
     print("\n'x csrt' = CSRT's time / manifold's time on the same frames (>1: manifold is faster).")
+    if True in jits:
+        print("jit on: 'features' is the fused warp+features+covariance kernel (warp and covariance read 0).")
     return 0
 
 
-def _row(k, quad, dt, st, stage_names, peers) -> None:
-    """Print one table row: quadrants, particles, ms, fps, stages, ratios to the peers."""
-    row = f"{'on' if quad else 'off':>9} {k:>9} {1e3 * dt:>9.2f} {1 / dt:>7.1f} " + " ".join(
-        f"{1e3 * st.get(s, 0):>10.2f}" for s in stage_names)
+def whole_process(sequence, n_frames: int, repeat: int) -> None:
+    """Frames per second of ``covviz track`` as a user runs it, process start to end, manifold vs CSRT.
+
+    Each run is a fresh process (imports, kernels from numba's cache, decoding, the drift diagnosis,
+    results written); the two alternate, ``repeat`` times each, and the ratio is taken pair by pair.
+    """
+    import subprocess
+    import tempfile
+
+    cmd = [sys.executable, "-m", "covviz.cli", "track", *([] if sequence is None else [str(sequence)]),
+           "--max-frames", str(n_frames), "--no-save", "--no-progress"]
+    walls: dict[str, list[float]] = {"manifold": [], "csrt": []}
+    with tempfile.TemporaryDirectory() as out:
+        for _ in range(repeat):
+            for name, w in walls.items():
+                t0 = time.perf_counter()
+                subprocess.run([*cmd, "--trackers", name, "--out", out], check=True, capture_output=True)
+                w.append(time.perf_counter() - t0)
+    ratios = [c / m for m, c in zip(walls["manifold"], walls["csrt"])]
+    print(f"\nwhole process, 'covviz track ... --max-frames {n_frames} --no-save' ({repeat} runs each, alternating):")
+    for name, w in walls.items():
+        print(f"  {name:>8}: {n_frames / np.median(w):6.1f} frames/s (median wall {np.median(w):.2f} s; "
+              f"{', '.join(f'{v:.2f}' for v in w)})")
+    print(f"  manifold's rate / csrt's, pair by pair: {', '.join(f'{r:.2f}' for r in ratios)} "
+          f"(median {np.median(ratios):.2f})")
+
+
+def _row(k, quad, jit, dt, st, stage_names, peers) -> None:
+    """Print one table row: quadrants, jit, particles, ms, fps, stages, ratios to the peers."""
+    row = f"{'on' if quad else 'off':>9} {'on' if jit else 'off':>4} {k:>9} {1e3 * dt:>9.2f} {1 / dt:>7.1f} "
+    row += " ".join(f"{1e3 * st.get(s, 0):>10.2f}" for s in stage_names)
     row += "".join(f" {pt / dt:>8.2f}" for pt in peers.values())
     print(row)
 

@@ -556,6 +556,11 @@ def _bench_locked(
             "%d of %d jobs already done in %s; running the other %d", skipped, len(all_jobs), out, len(todo)
         )
 
+    if todo and any(j.tracker.startswith("manifold") for j in todo) and (cluster is None or cluster.startswith("local:")):
+        from covviz import kernels
+
+        # Once here, not in every fresh job process at the same time (the compiled code is cached on disk).
+        kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
     ran: list[str] = []
     failed: list[tuple[str, str]] = []
     events: list[str] = []

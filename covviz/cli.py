@@ -7,16 +7,21 @@ Subcommands::
     covviz report DIR         rebuild a bench's markdown report and figures from its result files
     covviz tune ROOT          an Optuna study over the manifold tracker's config, checked on held-out seeds
     covviz mds [SEQUENCE]     the paper's manifold figures (MDS), as a recording and PNGs
-    covviz snapshot RRD       a PNG of a recording in the headless Rerun viewer, at a chosen frame
+    covviz snapshot RRD       a PNG of a recording in the headless Rerun viewer (a frame, or a sheet around an event)
+    covviz events RRD         the events and drift diagnoses of a recording
 
-Exit codes: 0 success, 1 unexpected error, 2 bad input (the one-line message
-says what to fix), 130 interrupted.
+Exit codes: 0 success, 1 unexpected error, 2 bad input or an output that
+cannot be written (the one-line message says what to fix), 130 interrupted by
+Ctrl-C, 143 stopped by SIGTERM (both keep the results of the frames done).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import math
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -24,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from covviz.errors import InputError
-from covviz.sequences import open_sequence
+from covviz.sequences import IMAGE_EXTENSIONS, open_sequence
 
 log = logging.getLogger("covviz")
 
@@ -47,6 +52,12 @@ def parse_box(text: str) -> np.ndarray:
         raise argparse.ArgumentTypeError(f"--box must be 4 numbers x,y,w,h; got {text!r}") from None
     if len(vals) != 4:
         raise argparse.ArgumentTypeError(f"--box must be 4 numbers x,y,w,h; got {text!r}")
+    parts = [v for v in text.replace(" ", ",").split(",") if v]
+    for name, v, raw in zip("xywh", vals, parts):
+        if math.isnan(v):
+            raise argparse.ArgumentTypeError(f"{name} is not a number ({raw!r}); give 4 numbers x,y,w,h in pixels")
+        if math.isinf(v):
+            raise argparse.ArgumentTypeError(f"{name}={raw} is not a finite number; give x,y,w,h in pixels")
     return np.array(vals)
 
 
@@ -85,10 +96,12 @@ def tracker_list(text: str) -> list[str]:
 TRACK_EPILOG = """\
 examples:
   covviz track                                   # the embedded synthetic sequence
-  covviz track ../shared/sequences/Car4 --seed 1 # an OTB folder
-  covviz track clip.mp4 --box 120,80,40,60       # a video (or 'frames/*.png'): give the first box
-  covviz track Car4 --trackers manifold,ipca     # several trackers side by side on the same frames
-  covviz track Couple --spawn                    # watch it live in a Rerun viewer (and save it)
+  covviz track synthetic:occlusion               # a failure on purpose at a known frame; also distractor,
+                                                 #   illumination, fast-motion, scale, appearance
+  covviz track path/to/Car4 --seed 1             # an OTB folder (img/0001.jpg... + groundtruth_rect.txt)
+  covviz track clip.mp4 --box 120,80,40,60       # a video (or 'frames/*.png', quoted): give the first box
+  covviz track path/to/Car4 --trackers manifold,ipca   # several trackers side by side on the same frames
+  covviz track path/to/Couple --spawn            # watch it live in a Rerun viewer (and save it)
   covviz track --mds-every 5 --save my.rrd       # denser template-cloud pictures, another file
 
 Every run writes a Rerun recording (default recordings/SEQUENCE-TRACKERS-sSEED.rrd;
@@ -128,7 +141,7 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
     )
     p.add_argument("--particles", type=positive_int, help="number of particles (default: the tracker's own)")
     add_config_arg(p)
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0): same seed, same boxes")
+    p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0): same seed, same boxes")
     p.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
     p.add_argument("--out", type=Path, default=Path("runs"), help="results folder (default: runs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -192,7 +205,28 @@ RECORDING_BYTES_PER_FRAME = 40_000
 RECORDING_MARGIN_BYTES = 20_000_000
 
 
-def _check_recording_path(path: Path, n_frames: int, n_trackers: int) -> None:
+def _mkdirs(path: Path, created: list[Path] | None) -> None:
+    """``mkdir -p path``, noting in ``created`` (top first) the folders it made, for :func:`_remove_empty`."""
+    missing = []
+    p = Path(path)
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    Path(path).mkdir(parents=True, exist_ok=True)
+    if created is not None:
+        created.extend(reversed(missing))
+
+
+def _remove_empty(created: list[Path]) -> None:
+    """Remove the folders a command made that are still empty (an error before the run wrote anything)."""
+    for d in reversed(created):
+        try:
+            d.rmdir()
+        except OSError:
+            pass
+
+
+def _check_recording_path(path: Path, n_frames: int, n_trackers: int, created: list[Path] | None = None) -> None:
     """Fail before tracking if the recording cannot be written (one-line UsageError)."""
     import shutil
 
@@ -202,7 +236,7 @@ def _check_recording_path(path: Path, n_frames: int, n_trackers: int) -> None:
         raise UsageError(f"--save {path}: is a folder; give a file name ending in .rrd")
     parent = path.parent if str(path.parent) else Path(".")
     try:
-        parent.mkdir(parents=True, exist_ok=True)
+        _mkdirs(parent, created)
         probe = parent / f".covviz-write-test-{path.stem}"
         with open(probe, "wb") as fh:
             fh.write(b"\0" * 65536)
@@ -241,22 +275,46 @@ def default_recording_path(sequence_name: str, trackers: list[str], seed: int) -
     return Path("recordings") / f"{safe}-{'+'.join(trackers)}-s{seed}.rrd"
 
 
-def _recording_observers(args, seq, n_frames: int) -> tuple[list, Path | None]:
-    """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file."""
+def _print_diagnosis(found: dict | None) -> None:
+    """The terminal summary of the drift diagnosis: every loss with its cause, the suspects' count."""
+    if not found:
+        return
+    for d in found.get("diagnoses", []):
+        print(f"  {d['text']}")
+    sus = found.get("suspects", [])
+    if sus:
+        kinds = sorted({sp["kind"] for sp in sus})
+        print(f"  {len(sus)} suspect frame(s) without ground truth ({', '.join(kinds)}); 'covviz events' lists them")
+    labels = found.get("labels", {})
+    off = {k: v for k, v in labels.items() if k != "ok" and v}
+    if off:
+        print("  frames off track: " + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items()))
+
+
+def _recording_observers(
+    args, seq, n_frames: int, diagnoser, created: list[Path] | None = None
+) -> tuple[list, Path | None]:
+    """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file.
+
+    Without a recording, the drift diagnosis runs on its own background thread.
+    """
     save = None if args.no_save else (args.save or default_recording_path(seq.name, args.trackers, args.seed))
     if args.no_save and args.save is not None:
         raise UsageError("--save and --no-save contradict each other; give one")
     live = bool(args.spawn or args.connect or args.serve_web)
-    if save is None and not live:
-        return [], None
-    if save is not None:
-        _check_recording_path(save, n_frames, len(args.trackers))
-    _check_viewer(args)
     from covviz.runner import BackgroundObserver
+
+    if save is None and not live:
+        return [BackgroundObserver(diagnoser)], None
+    if save is not None:
+        _check_recording_path(save, n_frames, len(args.trackers), created)
+    _check_viewer(args)
     from covviz.viz.logger import LoggerConfig, RerunLogger
     from covviz.viz.sinks import BATCH_SECONDS, BATCH_SECONDS_LIVE, attach_sinks, new_recording
 
-    config = LoggerConfig(mds_every=args.mds_every, likelihood_every=args.likelihood_every, seed=args.seed)
+    config = LoggerConfig(
+        mds_every=args.mds_every, likelihood_every=args.likelihood_every, seed=args.seed, diagnosis=diagnoser.config
+    )
     stream = new_recording(batch_seconds=BATCH_SECONDS_LIVE if live else BATCH_SECONDS)
     attach_sinks(stream, save=save, spawn=args.spawn, connect=args.connect, serve_web=args.serve_web)
     info = {
@@ -268,12 +326,12 @@ def _recording_observers(args, seq, n_frames: int) -> tuple[list, Path | None]:
         "particles": args.particles,
     }
     # The recorder logs on its own thread, overlapping the tracker (runner.BackgroundObserver).
-    return [BackgroundObserver(RerunLogger(stream, config, run_info=info))], save
+    return [BackgroundObserver(RerunLogger(stream, config, run_info=info, diagnoser=diagnoser))], save
 
 
-def _check_out_dir(out: Path) -> None:
+def _check_out_dir(out: Path, created: list[Path] | None = None) -> None:
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        _mkdirs(out, created)
         probe = out / ".covviz-write-test"
         probe.write_text("")
         probe.unlink()
@@ -335,25 +393,121 @@ def cmd_track(args) -> int:
         return _track(args)
 
 
+def _warm_kernels(trackers) -> None:
+    """Compile the manifold tracker's kernels before the run (once per install; then loaded from the cache)."""
+    from covviz import kernels
+
+    if kernels.JIT_ENABLED and any(getattr(getattr(t, "config", None), "jit", False) for t in trackers):
+        took = kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
+        log.debug("kernels ready in %.1f s", took)
+
+
+def _check_frames(seq, n_frames: int) -> None:
+    """Fail before tracking if a numbered frame is missing among the frames to track.
+
+    Frames are matched to ground truth by their number (img/0015.jpg is row 15);
+    tracking across a gap would score every later frame against the wrong row,
+    and the OTB results format has no way to skip a frame.
+    """
+    missing = [i for i in getattr(seq, "missing", ()) if i < n_frames]
+    if missing:
+        first = seq.files[missing[0]]
+        more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
+        raise UsageError(
+            f"{first}: frame missing{more} (frames are matched to the ground truth by number); restore it, "
+            f"or track the {missing[0]} frames before it with --max-frames {missing[0]}"
+        )
+
+
+def _recorded(args) -> bool:
+    return not args.no_save or bool(args.spawn or args.connect or args.serve_web)
+
+
+def _check_memory(args, frame_shape) -> None:
+    """Fail before tracking if ``--particles`` needs more memory than the machine has free."""
+    if args.particles is None:
+        return
+    from covviz.resources import available_memory, run_memory
+    from covviz.trackers import STOCHASTIC
+
+    n = sum(name in STOCHASTIC for name in args.trackers)
+    avail = available_memory()
+    if not n or avail is None:
+        return
+    rec = _recorded(args)
+    need = run_memory(args.particles, frame_shape, n, rec)
+    if need > avail:
+        fixed = run_memory(0, frame_shape, n, rec)
+        most = max(0, int((avail - fixed) / ((need - fixed) / args.particles)))
+        raise UsageError(
+            f"--particles {args.particles} needs about {need / 1e9:.1f} GB of memory and {avail / 1e9:.1f} GB is "
+            f"available; use at most about {most} particles" + (" or fewer trackers" if n > 1 else "")
+        )
+
+
+def _recording_complete(path: Path) -> bool:
+    from covviz.viz.sinks import recording_complete
+
+    return bool(recording_complete(path))
+
+
+def _q(path) -> str:
+    """A path as a shell would need it (quoted if it has spaces)."""
+    return shlex.quote(str(path))
+
+
 def _track(args) -> int:
-    from covviz.results import save_result
-    from covviz.runner import ResultCollector, run_many
+    from covviz.diagnosis import Diagnoser
     from covviz.trackers.base import check_init_box
 
     seq = open_sequence(args.sequence, box=args.box)
     if len(seq) < 2:
         raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
+    n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
+    _check_frames(seq, n_frames)
     first = seq.frame(0)  # fail early on an unreadable first frame or a bad box
     check_init_box(seq.init_box, first.image.shape)
-    _check_out_dir(args.out)
-    trackers = _make_trackers(args.trackers, args.seed, args.particles, getattr(args, "config", None))
-    # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
-    n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
-    recorders, rrd = _recording_observers(args, seq, n_frames)
+    _check_memory(args, first.image.shape)
+    created: list[Path] = []  # folders made by the checks: removed again if nothing is written
+    try:
+        _check_out_dir(args.out, created)
+        trackers = _make_trackers(args.trackers, args.seed, args.particles, getattr(args, "config", None))
+        diagnoser = Diagnoser()
+        # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
+        recorders, rrd = _recording_observers(args, seq, n_frames, diagnoser, created)
+    except BaseException:
+        _remove_empty(created)
+        raise
+    _warm_kernels(trackers)
+    with contextlib.ExitStack() as stack:  # the trackers' threads end with the run
+        for tr in trackers:
+            if hasattr(tr, "close"):
+                stack.callback(tr.close)
+        return _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created)
+
+
+def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> int:
+    from covviz.metrics import nothing_to_score
+    from covviz.results import ResultWriter
+    from covviz.runner import FreeSpaceGuard, ResultCollector, run_many
+    from covviz.signals import exit_code
+
+    def extra(j: int) -> dict:
+        """What the drift diagnosis found for tracker ``j`` so far, for its results JSON."""
+        if j >= len(diagnoser.states):
+            return {}
+        return {"diagnosis": diagnoser.report(j), "diagnosis_config": diagnoser.config.as_dict()}
+
+    # The results are on disk while the run goes (every second, and at the end): what a kill, a
+    # signal or a full disk leaves is the frames done. The writer ends after the recorder (whose
+    # thread also runs the drift diagnosis), so the final files hold the whole diagnosis.
+    writer = ResultWriter(args.out, extra=extra)
+    guard = FreeSpaceGuard([args.out, *([rrd] if rrd is not None else [])])
     collector = ResultCollector()
-    observers = [*getattr(args, "observers", []), *recorders, collector]
+    observers = [*getattr(args, "observers", []), guard, *recorders, writer, collector]
+    where = args.out / seq.name
     t0 = time.perf_counter()
-    interrupted = False
+    code = 0
     try:
         results = run_many(
             trackers,
@@ -363,39 +517,53 @@ def _track(args) -> int:
             progress=not args.no_progress,
             seeds=[args.seed] * len(trackers),
         )
-    except Exception:
-        # An error inside a tracker: keep what was done (the recording already
-        # holds those frames), then report the error.
-        done = collector.results
-        if done and len(done[0].boxes) > 1:
-            for res in done:
-                save_result(res, args.out)
-            log.warning("results of the %d frames before the error are in %s/%s/", len(done[0].boxes), args.out,
-                        seq.name)
-        raise
-    except KeyboardInterrupt:
-        interrupted = True
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (covviz.signals): keep what was done
+        code = exit_code(exc)
+        for note in getattr(exc, "__notes__", []):  # an observer that could not finish (covviz.runner)
+            log.warning("%s", note)
         results = collector.results
-        log.warning("interrupted: the results hold the %d frames done so far", len(results[0].boxes) if results else 0)
+        log.warning("interrupted: the results hold the %d frames done so far", writer.saved_frames)
         if rrd is not None:
-            print(f"recording (up to the interruption) in {rrd}   open it with: rerun {rrd}")
-        if not results or not len(results[0].boxes):
-            return EXIT_INTERRUPTED
+            print(f"recording (up to the interruption) in {rrd}   open it with: rerun {_q(rrd)}")
+        if not writer.docs:
+            _remove_empty(created)
+            return code
+    except InputError as exc:
+        # A broken frame or a full disk: one line from main (exit 2) that also says what was kept
+        # (the observers' notes - the recording cut short by the same full disk - are in it).
+        kept = [f"the results of the {writer.saved_frames} frames before it in {where}/"] if writer.saved_frames else []
+        if rrd is not None:
+            kept.append(f"the recording {_q(rrd)}" if _recording_complete(rrd) else
+                        f"the recording {_q(rrd)} cut short ('rerun rrd migrate {_q(rrd)}' completes it)")
+        if kept:
+            exc.args = (f"{exc} (kept: {'; '.join(kept)})",)
+        exc.__notes__ = []
+        _remove_empty(created)
+        raise
+    except BaseException:
+        # A bug in a tracker (traceback, exit 1): the results of the frames before it are on disk.
+        if writer.saved_frames:
+            log.warning("results of the %d frames before the error are in %s/", writer.saved_frames, where)
+        _remove_empty(created)
+        raise
     wall = time.perf_counter() - t0
-    for res in results:
-        doc = save_result(res, args.out)
+    for res, doc in zip(results, writer.docs):
         m = doc["metrics"]
+        head = f"{res.sequence} · {res.tracker} (seed {res.seed}): {len(res.boxes)} frames, {res.fps:.1f} fps"
+        if nothing_to_score(res.groundtruth):
+            print(f"{head}\n  nothing to score: no ground truth after the first frame, whose box is the one given")
+            continue
         print(
-            f"{res.sequence} · {res.tracker} (seed {res.seed}): {len(res.boxes)} frames, "
-            f"{res.fps:.1f} fps\n"
+            f"{head}\n"
             f"  success AUC {m['success_auc']:.3f}   P@20 {m['precision_20']:.3f}   "
             f"r_on_track {m['r_on_track']:.3f}   rms_on_track {m['rms_on_track']:.3f}   "
             f"mean IoU {m['mean_iou']:.3f}   ({m['n_skipped']} frames without ground truth skipped)"
         )
-    print(f"results in {args.out}/{seq.name}/  ({wall:.1f} s wall)")
-    if rrd is not None and not interrupted:
-        print(f"recording in {rrd}   open it with: rerun {rrd}")
-    return EXIT_INTERRUPTED if interrupted else 0
+        _print_diagnosis(doc.get("diagnosis"))
+    print(f"results in {where}/  ({wall:.1f} s wall)")
+    if rrd is not None and not code:
+        print(f"recording in {rrd}   open it with: rerun {_q(rrd)}")
+    return code
 
 
 # --------------------------------------------------------------------------- #
@@ -646,11 +814,14 @@ def cmd_report(args) -> int:
 MDS_EPILOG = """\
 examples:
   covviz mds                                       # the synthetic default (frames 1, 101, 201)
-  covviz mds ../shared/sequences/Car4              # frames 1, 101, 201, 501 of Car4
-  covviz mds Car4 --frames 1,51,101 --png-dir docs/img
+  covviz mds path/to/Car4                          # frames 1, 101, 201, 501 of Car4
+  covviz mds path/to/Car4 --frames 1,51,101 --png-dir docs/img
+  covviz mds path/to/Car4 --save car4-mds.rrd --no-png
 
-Writes recordings/SEQUENCE-mds.rrd (open with 'rerun FILE') and two PNGs:
-SEQUENCE-mds-separation.png (target vs background) and SEQUENCE-mds-random-walk.png.
+Writes recordings/SEQUENCE-mds.rrd (--save another file, --no-save none; open it with
+'rerun FILE') and two PNGs in --png-dir (default recordings/): SEQUENCE-mds-separation.png
+(target vs background) and SEQUENCE-mds-random-walk.png. Frames are 1-based (frame 1 is
+img/0001.jpg), as everywhere in covviz.
 """
 
 
@@ -692,7 +863,7 @@ def add_mds_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--method", choices=("classical", "smacof"), default="classical",
                    help="MDS: classical (default) or SMACOF (started from the classical solution)")
     p.add_argument("--particles", type=positive_int, help="particles of the tracker for figure (b)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
     p.add_argument("--png-dir", type=Path, default=Path("recordings"), help="folder for the PNGs (default recordings/)")
     p.add_argument("--no-png", action="store_true", help="write no PNGs")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -732,22 +903,22 @@ def _mds(args) -> int:
     if not args.no_png:
         _check_out_dir(args.png_dir)
     progress = not args.no_progress
-    sep = separation_data(seq, cfg, progress=progress)
+    # One observation model for both figures: the one the tracker of figure (b) builds at init.
     walk = random_walk_data(seq, cfg, progress=progress)
+    sep = separation_data(seq, cfg, progress=progress, model=walk.model)
     if save is not None or args.spawn or args.connect or args.serve_web:
         from covviz.viz.blueprint import mds_blueprint
         from covviz.viz.mds_figures import log_figures
-        from covviz.viz.sinks import attach_sinks, new_recording
+        from covviz.viz.sinks import attach_sinks, close_stream, new_recording
 
         stream = new_recording()
         attach_sinks(stream, save=save, spawn=args.spawn, connect=args.connect, serve_web=args.serve_web)
         stream.send_blueprint(mds_blueprint())
         stream.send_recording_name(f"{safe} · MDS figures")
         log_figures(stream, sep, walk, seq.name)
-        stream.flush(timeout_sec=30.0)
-        stream.disconnect()
+        close_stream(stream, timeout=30.0)  # flushes, disconnects, checks the file (a full disk is one line)
         if save is not None:
-            print(f"recording in {save}   open it with: rerun {save}")
+            print(f"recording in {save}   open it with: rerun {_q(save)}")
     if not args.no_png:
         from covviz.viz.mds_figures import save_pngs
 
@@ -767,22 +938,42 @@ SNAPSHOT_EPILOG = """\
 examples:
   covviz snapshot recordings/synthetic-manifold-s0.rrd --frame 120 --out shot.png
   covviz snapshot run.rrd --size 1920x1080            # the last frame
+  covviz events run.rrd                               # which events are there (their numbers K)
+  covviz snapshot run.rrd --event 3 --offsets -5,0,5 --out sheet.png   # before / at / after event 3
+  covviz snapshot recordings/Car4-mds.rrd --out mds.png                # an 'mds' recording (static)
 
+Frames are 1-based, as on the recording's timeline and in the events (frame 1 is the first image).
 Needs a Vulkan driver for the headless viewer: apt-get install -y mesa-vulkan-drivers libvulkan1
 """
+
+
+def offset_list(text: str) -> tuple[int, ...]:
+    try:
+        vals = tuple(int(v) for v in text.replace(" ", ",").split(",") if v)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--offsets must be frame offsets like -5,0,5; got {text!r}") from None
+    if not vals:
+        raise argparse.ArgumentTypeError(f"--offsets must be frame offsets like -5,0,5; got {text!r}")
+    return vals
 
 
 def add_snapshot_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "snapshot",
-        help="a PNG of a recording in the headless Rerun viewer",
+        help="a PNG of a recording in the headless Rerun viewer (a frame, or a sheet around an event)",
         description="Open a recording in the real Rerun viewer, headless (software rendering), go to a frame "
-        "and save a screenshot of the whole window with the recording's own layout.",
+        "and save a screenshot of the whole window with the recording's own layout. With --event, take one "
+        "screenshot per offset around that event (one viewer launch) and stack them into one sheet.",
         epilog=SNAPSHOT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("recording", type=Path, help="an .rrd file")
-    p.add_argument("--frame", type=nonneg_int, help="frame to show (default: the last)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--frame", type=positive_int, help="frame number to show, 1-based (default: the last)")
+    where.add_argument("--event", type=nonneg_int, metavar="K",
+                       help="event K of 'covviz events REC.rrd' (its frame, plus --offsets)")
+    p.add_argument("--offsets", type=offset_list, default=(-5, 0, 5), metavar="A,B,…",
+                   help="with --event: frames relative to the event's (default -5,0,5)")
     p.add_argument("--out", type=Path, default=Path("shot.png"), help="PNG to write (default shot.png)")
     p.add_argument("--size", default="1600x900", help="window size WxH in points (default 1600x900)")
     p.add_argument("--timeline", default="frame", help="timeline of --frame (default 'frame')")
@@ -792,18 +983,118 @@ def add_snapshot_parser(sub) -> argparse.ArgumentParser:
 
 
 def cmd_snapshot(args) -> int:
-    from covviz.viz.snapshot import SnapshotError, parse_size, snapshot
+    import tempfile
+
+    from covviz.viz.readback import last_frame, read_events
+    from covviz.viz.snapshot import SnapshotError, contact_sheet, parse_size, snapshot, snapshot_frames
 
     if not args.recording.is_file():
         raise UsageError(f"{args.recording}: no such recording")
     size = parse_size(args.size)
+    created: list[Path] = []
+    _check_png_path(args.out, created)
     try:
-        out = snapshot(args.recording, args.out, frame=args.frame, size=size, timeline=args.timeline,
-                       timeout=args.timeout)
+        if args.event is None:
+            out = snapshot(args.recording, args.out, frame=args.frame, size=size, timeline=args.timeline,
+                           timeout=args.timeout)
+            print(f"screenshot: {out}")
+            return 0
+        events = read_events(args.recording)
+        if not events:
+            raise UsageError(f"{args.recording}: the recording has no events (see 'covviz events')")
+        if args.event >= len(events):
+            raise UsageError(f"--event {args.event}: the recording has events 0..{len(events) - 1} "
+                             "(list them with 'covviz events')")
+        ev = events[args.event]
+        last = last_frame(args.recording) or ev["frame"]
+        frames = sorted({min(max(1, ev["frame"] + k), last) for k in args.offsets})
+        with tempfile.TemporaryDirectory() as tmp:
+            shots = [(Path(tmp) / f"f{f}.png", f) for f in frames]
+            snapshot_frames(args.recording, shots, size, args.timeline, args.timeout)
+            labels = [f"frame {f} ({f - ev['frame']:+d} from event {args.event}: {ev['kind']} "
+                      f"{ev['cause'].replace('_', ' ')}) - {ev['tracker']}" for f in frames]
+            out = contact_sheet([p for p, _ in shots], labels, args.out)
     except SnapshotError as exc:
+        _remove_empty(created)
         raise UsageError(str(exc)) from None
-    print(f"screenshot: {out}")
+    except BaseException:
+        _remove_empty(created)
+        raise
+    print(f"sheet: {out} (frames {', '.join(map(str, frames))} around event {args.event}: {ev['text'][:100]})")
     return 0
+
+
+# --------------------------------------------------------------------------- #
+# events
+# --------------------------------------------------------------------------- #
+EVENTS_EPILOG = """\
+examples:
+  covviz events recordings/synthetic-manifold-s0.rrd
+  covviz events run.rrd --kind diagnosis            # only the diagnosed losses
+  covviz events run.rrd --json > events.json        # for scripts (evidence included)
+  covviz snapshot run.rrd --event 4 --offsets -5,0,5 --out sheet.png
+
+Kinds: drift, lost, recovered, storm, storm_end (from the ground truth and the weights),
+diagnosis (the cause of a loss, with its evidence), suspect (warnings without ground truth).
+Frames are 1-based, as on the recording's timeline.
+"""
+
+
+def add_events_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "events",
+        help="list the events and drift diagnoses of a recording",
+        description="Read the events of a tracking recording (loss, drift onset, recovery, resampling storms, "
+        "the diagnosed cause of every loss, label-free suspects) from the file, and print them with their "
+        "numbers K for 'covviz snapshot --event K'.",
+        epilog=EVENTS_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("recording", type=Path, help="an .rrd file written by 'covviz track'")
+    p.add_argument("--kind", action="append", metavar="KIND", help="only events of this kind (repeatable)")
+    p.add_argument("--tracker", help="only this tracker's events")
+    p.add_argument("--json", action="store_true", help="print JSON (one list, evidence included)")
+    p.set_defaults(func=cmd_events)
+    return p
+
+
+def cmd_events(args) -> int:
+    import json
+
+    from covviz.viz.readback import read_events
+
+    events = read_events(args.recording)
+    if args.kind:
+        events = [e for e in events if e["kind"] in args.kind]
+    if args.tracker:
+        events = [e for e in events if e["tracker"] == args.tracker]
+    if args.json:
+        print(json.dumps(events, indent=1))
+        return 0
+    if not events:
+        print(f"{args.recording}: no events")
+        return 0
+    for e in events:
+        cause = f" [{e['cause'].replace('_', ' ')}]" if e["cause"] else ""
+        print(f"{e['index']:>3}  frame {e['frame']:>5}  {e['tracker']:<14} {e['kind']:<9}{cause} {e['text']}")
+    return 0
+
+
+def _check_png_path(out: Path, created: list[Path]) -> None:
+    """``snapshot --out``: a PNG file that can be written (not a folder, not under a file)."""
+    if out.is_dir():
+        raise UsageError(f"--out {out}: is a folder; give a file name ending in .png")
+    if out.suffix.lower() != ".png":
+        raise UsageError(f"--out {out}: a screenshot is a PNG; give a file name ending in .png")
+    parent = out.parent if str(out.parent) else Path(".")
+    try:
+        _mkdirs(parent, created)
+        probe = parent / f".covviz-write-test-{out.stem}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        _remove_empty(created)
+        raise UsageError(f"cannot write {out}: {exc.strerror or exc}; choose another --out") from None
 
 
 # --------------------------------------------------------------------------- #
@@ -817,11 +1108,12 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="""\
 examples:
   covviz track                                  # the synthetic default: metrics, runs/, recordings/
-  covviz track ../shared/sequences/Car4 --trackers manifold,ipca --seed 1
-  rerun recordings/Car4-manifold-ipca-s1.rrd    # scrub it frame by frame in the viewer
+  covviz track path/to/Car4 --trackers manifold,ipca --seed 1
+  rerun 'recordings/Car4-manifold+ipca-s1.rrd'  # scrub it frame by frame in the viewer
+  covviz events 'recordings/Car4-manifold+ipca-s1.rrd'   # the losses and their diagnosed causes
   covviz snapshot recordings/synthetic-manifold-s0.rrd --frame 120 --out shot.png
-  covviz mds ../shared/sequences/Car4           # the paper's manifold MDS figures
-  covviz bench ../shared/sequences --trackers manifold,ipca,csrt --seeds 3 --jobs 2
+  covviz mds path/to/Car4                       # the paper's manifold MDS figures
+  covviz bench path/to/sequences --trackers manifold,ipca,csrt --seeds 3 --jobs 2
   covviz report runs/bench --out docs/results.md
 
 Run 'covviz COMMAND --help' for the options and examples of each command.""",
@@ -835,26 +1127,63 @@ Run 'covviz COMMAND --help' for the options and examples of each command.""",
     add_tune_parser(sub)
     add_mds_parser(sub)
     add_snapshot_parser(sub)
+    add_events_parser(sub)
     return parser
 
 
+def _glue_negative_values(argv: list[str]) -> list[str]:
+    """``--offsets -5,0,5`` as ``--offsets=-5,0,5``: argparse takes a value starting with '-' for an option."""
+    out: list[str] = []
+    it = iter(argv)
+    for a in it:
+        if a == "--offsets":
+            nxt = next(it, None)
+            out.append(a if nxt is None else f"{a}={nxt}")
+        else:
+            out.append(a)
+    return out
+
+
+def _unquoted_glob(parser: argparse.ArgumentParser, args, extra: list[str]) -> None:
+    """Unrecognised arguments: argparse's error, with a hint when the shell expanded an unquoted glob."""
+    images = [a for a in [getattr(args, "sequence", None), *extra]
+              if a and Path(a).suffix.lower() in IMAGE_EXTENSIONS and Path(a).is_file()]
+    if getattr(args, "command", None) in ("track", "mds") and len(images) > 1:
+        pattern = str(Path(images[0]).parent / ("*" + Path(images[0]).suffix))
+        print(
+            f"covviz {args.command}: error: got {len(images)} image files ({images[0]} {images[1]} …): the shell "
+            f"expanded an unquoted glob; quote it: covviz {args.command} {_q(pattern)} --box x,y,w,h",
+            file=sys.stderr,
+        )
+        raise SystemExit(EXIT_BAD_INPUT)
+    parser.error(f"unrecognized arguments: {' '.join(extra)}")
+
+
 def main(argv: list[str] | None = None) -> int:
+    from covviz.signals import exit_code, stop_signals
+
     parser = build_parser()
-    args = parser.parse_args(argv)
-    args.argv = list(sys.argv[1:] if argv is None else argv)  # written into recordings
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args, extra = parser.parse_known_args(_glue_negative_values(argv))
+    if extra:
+        _unquoted_glob(parser, args, extra)
+    args.argv = argv  # written into recordings
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s: %(message)s"
     )
     try:
-        return int(args.func(args) or 0)
+        # SIGTERM stops a run as Ctrl-C does (results of the frames done, a valid recording),
+        # with exit code 143; a second signal never cuts short the saving of the first.
+        with stop_signals():
+            return int(args.func(args) or 0)
     except InputError as exc:
         # Validation of what the user gave (covviz.errors); any other exception, a ValueError
         # raised by a tracker in the middle of a run included, is a bug: traceback, exit 1.
         print(f"covviz {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         print(f"covviz {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return exit_code(exc)
 
 
 if __name__ == "__main__":

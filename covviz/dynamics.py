@@ -24,9 +24,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["KinematicModel", "propagate_kinematics", "symmetric_noise", "template_walk"]
+__all__ = [
+    "POSE",
+    "SCALE",
+    "THETA",
+    "VX",
+    "VY",
+    "KinematicModel",
+    "X",
+    "Y",
+    "propagate_kinematics",
+    "symmetric_noise",
+    "template_walk",
+]
 
+#: Columns of a particle's state ``[x, y, vx, vy, scale, theta]``.
 X, Y, VX, VY, SCALE, THETA = range(6)
+#: The columns of the state that make a pose ``cx, cy, scale, theta``.
+POSE = [X, Y, SCALE, THETA]
 
 
 @dataclass(frozen=True)

@@ -7,10 +7,14 @@ module holds the pure maths (no plotting, no rerun):
 * :func:`distance_matrix` — pairwise Riemannian distances, in batches
   (:func:`covviz.spd.pairwise_distance`);
 * :func:`classical_mds` — Torgerson's classical MDS (double centring and the
-  top eigenvectors): deterministic, one ``eigh``;
-* :func:`smacof_mds` — metric MDS by SMACOF (the Guttman transform, as
-  scikit-learn's ``smacof``), started from the classical solution, so it is
-  deterministic; it keeps tight clouds open where classical MDS flattens them;
+  top eigenvectors): deterministic, one partial ``eigh``. Our own, not
+  scikit-learn's ``ClassicalMDS`` (1.8+): that one takes every eigenpair and
+  the square root of the top eigenvalues unclipped, so Riemannian (not
+  Euclidean) distances with fewer than two positive eigenvalues give NaN
+  coordinates, where ours clips them to 0;
+* :func:`smacof_mds` — metric MDS by SMACOF (:func:`sklearn.manifold.smacof`),
+  started from the classical solution, so it is deterministic; it keeps tight
+  clouds open where classical MDS flattens them;
 * :func:`procrustes_align` — the rotation/reflection and translation (no
   scaling: distances keep their meaning) that best maps one embedding onto a
   reference, fitted on the points the two share;
@@ -46,6 +50,7 @@ __all__ = [
     "procrustes_align",
     "smacof_mds",
     "stress",
+    "stress1",
 ]
 
 
@@ -125,6 +130,17 @@ def stress(X: np.ndarray, D: np.ndarray) -> float:
     return 0.5 * float(((d - D) ** 2).sum())
 
 
+def stress1(X: np.ndarray, D: np.ndarray) -> float:
+    """Kruskal's stress-1 ``sqrt(Σ (||x_i - x_j|| - D_ij)² / Σ D_ij²)``: 0 perfect, 0.1 fair, 0.2 poor.
+
+    How much of the distances a 2-D picture misrepresents: a picture with a
+    high stress is not to be read as a map.
+    """
+    D = np.asarray(D, dtype=np.float64)
+    den = float((D * D).sum())
+    return float(np.sqrt(2.0 * stress(X, D) / den)) if den > 0 else 0.0
+
+
 def smacof_mds(
     D: np.ndarray,
     n_components: int = 2,
@@ -132,15 +148,12 @@ def smacof_mds(
     max_iter: int = 300,
     eps: float = 1e-6,
 ) -> np.ndarray:
-    """Metric MDS by SMACOF (majorisation with the Guttman transform), deterministic.
+    """Metric MDS by SMACOF (:func:`sklearn.manifold.smacof`), deterministic.
 
-    Minimises the raw stress ``Σ_{i<j} (||x_i - x_j|| - D_ij)²``: every
-    iteration ``X <- B(X) X / n`` with ``B_ij = -D_ij / d_ij(X)`` (0 where
-    ``d_ij = 0``) and ``B_ii = -Σ_{j≠i} B_ij`` lowers it. Started from ``init``
-    if given, else from :func:`classical_mds`, so the same input gives the same
-    output (no random restarts). A few lines of numpy instead of
-    ``sklearn.manifold.smacof``: the same iteration, without importing
-    scikit-learn (half a second) inside a tracking run.
+    Minimises the raw stress ``Σ_{i<j} (||x_i - x_j|| - D_ij)²`` by the
+    Guttman transform, started from ``init`` if given, else from
+    :func:`classical_mds` (one run, no random restarts), so the same input
+    gives the same output.
 
     Parameters
     ----------
@@ -149,13 +162,16 @@ def smacof_mds(
     init : ndarray, shape (n, n_components), optional
     max_iter : int
     eps : float
-        Stop when an iteration lowers the stress by less than this fraction.
+        Stop when an iteration lowers the stress by less than this fraction
+        of the embedding's squared distances (scikit-learn's criterion).
 
     Returns
     -------
     ndarray, shape (n, n_components)
         Centred coordinates.
     """
+    from sklearn.manifold import smacof
+
     D = _check_distances(D)
     n = len(D)
     if n < 3:
@@ -163,18 +179,8 @@ def smacof_mds(
     X = classical_mds(D, n_components) if init is None else np.array(init, dtype=np.float64)
     if X.shape != (n, n_components):
         raise ValueError(f"init must have shape {(n, n_components)}, got {X.shape}")
-    old = None
-    for _ in range(max_iter):
-        d = np.sqrt(((X[:, None, :] - X[None, :, :]) ** 2).sum(axis=-1))
-        s = 0.5 * float(((d - D) ** 2).sum())
-        if old is not None and old - s <= eps * old:
-            break
-        old = s
-        with np.errstate(divide="ignore", invalid="ignore"):
-            B = np.where(d > 0, -D / d, 0.0)
-        np.fill_diagonal(B, 0.0)
-        B[np.diag_indices(n)] = -B.sum(axis=1)
-        X = B @ X / n
+    X, _ = smacof(D, metric=True, n_components=n_components, init=X, n_init=1, max_iter=max_iter, eps=eps,
+                  normalized_stress=False)
     return X - X.mean(axis=0)
 
 

@@ -37,9 +37,13 @@ __all__ = [
     "patch_features",
     "pose_corners",
     "pose_to_box",
+    "remap_stacked",
     "sample_grid",
     "warp_patches",
 ]
+
+#: OpenCV's remap needs every side of its output below SHRT_MAX (32767): stacked grids go in chunks.
+REMAP_MAX_ROWS = 32766
 
 FEATURE_NAMES = ("x", "y", "I", "|Ix|", "|Iy|", "|grad I|", "atan(|Ix|/|Iy|)", "|Ixx|", "|Iyy|")
 N_FEATURES = len(FEATURE_NAMES)
@@ -132,11 +136,66 @@ def sample_grid(poses, base_wh, size: int = 32, border: int = 1, step: float = 1
     return mx, my
 
 
+def remap_stacked(
+    gray: np.ndarray,
+    map_x: np.ndarray,
+    map_y: np.ndarray,
+    border: int = cv2.BORDER_REPLICATE,
+    border_value: float = 0.0,
+) -> np.ndarray:
+    """Bilinear samples of ``gray`` at a stack of grids, by ``cv2.remap`` in as few calls as it allows.
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W)
+        The image (converted to float32).
+    map_x, map_y : ndarray, shape (n, g, g2), float32
+        Pixel-centre coordinates of every grid point (continuous coordinate − ½).
+    border : int
+        OpenCV border mode for samples outside the image.
+    border_value : float
+        The value outside with ``cv2.BORDER_CONSTANT``.
+
+    Returns
+    -------
+    ndarray, shape (n, g, g2), float32
+
+    Notes
+    -----
+    The grids are stacked vertically into one image-sized map; OpenCV caps
+    each side of its output at ``SHRT_MAX``, so more than
+    ``REMAP_MAX_ROWS // g`` grids go in several calls (each grid whole, so
+    every sample is computed the same way whatever the batch).
+    """
+    n, g, g2 = map_x.shape
+    src = np.ascontiguousarray(gray, dtype=np.float32)
+    out = np.empty((n * g, g2), np.float32)
+    if n == 0:
+        return out.reshape(0, g, g2)
+    mx = np.ascontiguousarray(map_x, dtype=np.float32).reshape(n * g, g2)
+    my = np.ascontiguousarray(map_y, dtype=np.float32).reshape(n * g, g2)
+    rows = (REMAP_MAX_ROWS // g) * g
+    if rows < g:
+        raise ValueError(f"a grid of {g} rows exceeds OpenCV's remap limit of {REMAP_MAX_ROWS}")
+    for r in range(0, n * g, rows):
+        cv2.remap(
+            src,
+            mx[r : r + rows],
+            my[r : r + rows],
+            cv2.INTER_LINEAR,
+            dst=out[r : r + rows],
+            borderMode=border,
+            borderValue=border_value,
+        )
+    return out.reshape(n, g, g2)
+
+
 def warp_patches(gray: np.ndarray, poses, base_wh, size: int = 32, border: int = 1, step: float = 1.0):
     """Bilinear warp of every pose's region to a ``(size+2b) x (size+2b)`` patch.
 
-    One :func:`cv2.remap` call serves all poses (their grids are stacked
-    vertically). Samples outside the frame replicate the border pixel.
+    The grids of all poses are sampled together (:func:`remap_stacked`, in
+    chunks under OpenCV's size limit). Samples outside the frame replicate the
+    border pixel.
 
     Parameters
     ----------
@@ -150,15 +209,7 @@ def warp_patches(gray: np.ndarray, poses, base_wh, size: int = 32, border: int =
     ndarray, shape (n, size + 2·border, size + 2·border), float32
     """
     mx, my = sample_grid(poses, base_wh, size, border, step)
-    n, g, _ = mx.shape
-    out = cv2.remap(
-        np.ascontiguousarray(gray, dtype=np.float32),
-        mx.reshape(n * g, g),
-        my.reshape(n * g, g),
-        interpolation=cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_REPLICATE,
-    )
-    return out.reshape(n, g, g)
+    return remap_stacked(gray, mx, my, cv2.BORDER_REPLICATE)
 
 
 def patch_features(

@@ -17,8 +17,9 @@ jobs ran before it and where (a local slot or any Dask worker). The process
 * ends itself when its parent goes away (stdin closes), so a killed bench or a
   lost Dask worker leaves no job running.
 
-Starting a fresh interpreter costs ~0.5 s (numpy, OpenCV and scipy imports), small
-against a job. The executors that run many jobs (a local pool, a Dask cluster)
+Starting a fresh interpreter costs ~0.5 s (numpy, OpenCV and scipy imports), and
+~1 s more for the manifold trackers (numba, and their kernels from its cache): small
+against a real job, not against a test's 10-frame one. The executors that run many jobs (a local pool, a Dask cluster)
 share one interface, :class:`Executor`.
 """
 
@@ -157,14 +158,16 @@ class JobProcessDied(JobError):
 # the job itself
 # --------------------------------------------------------------------------- #
 class _FailureCounter:
-    """Observer: indices of frames whose record says ``extras["failed"]`` (OpenCV trackers)."""
+    """Observer: numbers (1-based) of the frames whose record says ``extras["failed"]`` (OpenCV trackers)."""
 
     def __init__(self) -> None:
         self.failed: list[int] = []
 
     def on_frame(self, frame, records) -> None:
+        from covviz.records import frame_number
+
         if records and records[0].extras.get("failed"):
-            self.failed.append(int(frame.index))
+            self.failed.append(frame_number(frame.index))
 
 
 def compute_job(job: Job, threads: int | None = None, executor: str = "local:1", slots: int = 1) -> JobOutput:
@@ -184,6 +187,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
     import numpy as np
 
     from covviz import __version__
+    from covviz.diagnosis import Diagnoser
     from covviz.metrics import (
         IOU_THRESHOLDS,
         ON_TRACK_GAMMA,
@@ -192,16 +196,18 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
         precision_curve,
         success_curve,
     )
-    from covviz.runner import run
+    from covviz.runner import BackgroundObserver, run
     from covviz.sequences import open_sequence
     from covviz.threads import limit_threads
 
     seq = open_sequence(job.path)
     tracker = job.make_tracker()
     failures = _FailureCounter()
+    diagnoser = Diagnoser()
     t0 = time.perf_counter()
-    with limit_threads(threads):
-        res = run(tracker, seq, [failures], max_frames=job.max_frames, seed=job.seed)
+    with limit_threads(threads), contextlib.closing(tracker) if hasattr(tracker, "close") else contextlib.nullcontext():
+        # The drift diagnosis on its own thread, overlapping the tracker (it never changes a box).
+        res = run(tracker, seq, [failures, BackgroundObserver(diagnoser)], max_frames=job.max_frames, seed=job.seed)
     wall = time.perf_counter() - t0
     extra = {
         "curves": {
@@ -212,6 +218,8 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
         },
         "thresholds": {"precision_at": PRECISION_AT, "on_track_gamma": ON_TRACK_GAMMA},
         "failed_frames": failures.failed,
+        "diagnosis": diagnoser.report(0),
+        "diagnosis_config": diagnoser.config.as_dict(),
         "bench": {
             "jobs": slots,
             "threads": threads,

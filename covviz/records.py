@@ -17,6 +17,11 @@ Conventions
   clockwise on screen.
 * Corners are ``(n, 4, 2)``: top-left, top-right, bottom-right, bottom-left of
   the (possibly rotated) region, in pixels.
+* Frames have a 0-based *index* in code (``Frame.index``, ``FrameRecord.index``)
+  and a 1-based *number* wherever a user sees them — the recording's ``frame``
+  timeline, events and diagnoses, ``covviz snapshot --frame``, ``covviz mds
+  --frames``, results files — so frame 1 is ``img/0001.jpg``, as OTB numbers them
+  (:func:`frame_number`).
 """
 
 from __future__ import annotations
@@ -26,10 +31,15 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["STAGES", "FrameRecord", "RunResult"]
+__all__ = ["STAGES", "FrameRecord", "RunResult", "frame_number"]
+
+def frame_number(index: int) -> int:
+    """The 1-based frame number users see for a 0-based frame index."""
+    return int(index) + 1
+
 
 #: Names of the timed stages of a manifold-tracker update, in execution order.
-STAGES = ("propagate", "warp", "features", "covariance", "distances", "weights", "resample")
+STAGES = ("propagate", "warp", "features", "covariance", "distances", "weights", "estimate", "resample")
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -77,6 +87,11 @@ class FrameRecord:
     extras : dict[str, Any]
         Tracker-specific arrays (for example the IPCA mean and basis, or an
         OpenCV tracker's failure flag).
+    model : object, optional
+        On the init record (index 0) of a covariance tracker: its frozen
+        :class:`~covviz.observation.ObservationModel`, which observers use to
+        compute what the tracker would observe at other poses (likelihood
+        maps, the drift diagnosis) without calling the tracker.
     """
 
     index: int
@@ -97,6 +112,7 @@ class FrameRecord:
     estimate_descriptor: np.ndarray | None = None
     timings: dict[str, float] = field(default_factory=dict)
     extras: dict[str, Any] = field(default_factory=dict)
+    model: Any = None
 
     @property
     def n_particles(self) -> int:

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +34,7 @@ import numpy as np
 from covviz.metrics import IOU_THRESHOLDS, ON_TRACK_GAMMA, PRECISION_AT, PRECISION_THRESHOLDS
 from covviz.results import ResultError, load_result, read_manifest
 
-__all__ = ["BASELINE", "OURS", "REPORT_NAME", "Run", "load_runs", "write_report"]
+__all__ = ["BASELINE", "OURS", "REPORT_NAME", "Run", "Summary", "load_runs", "render", "summarize", "write_report"]
 
 log = logging.getLogger("covviz.report")
 
@@ -76,6 +76,33 @@ class Run:
     threads: int | None
     success: np.ndarray | None  # OTB success curve over the IoU thresholds
     precision: np.ndarray | None  # OTB precision curve over the pixel thresholds
+    causes: tuple = ()  # the diagnosed cause of each loss (covviz.diagnosis)
+    losses: tuple = ()  # (drift began, lost at) of each loss, 1-based frames
+    suspects: tuple = ()  # frames of the label-free suspects
+
+
+def _diagnosis_fields(found: dict | None) -> dict:
+    """The causes, losses and suspects of a result's drift diagnosis (none for results without one)."""
+    if not found:
+        return {}
+    events = found.get("events", [])
+    drifts = [e["frame"] for e in events if e.get("kind") == "drift"]
+    lost = [e["frame"] for e in events if e.get("kind") == "lost"]
+    return {
+        "causes": tuple(d.get("cause", "unknown") for d in found.get("diagnoses", [])),
+        "losses": tuple(zip(drifts, lost)),
+        "suspects": tuple(int(sp["frame"]) for sp in found.get("suspects", [])),
+    }
+
+
+def _relative_root(root, md_path: Path) -> str:
+    """The manifest's root as the report names it: relative to the report's folder, never absolute."""
+    if not root:
+        return "?"
+    try:
+        return Path(os.path.relpath(Path(root).resolve(), md_path.parent.resolve())).as_posix()
+    except ValueError:  # another drive (Windows): the folder's name is all that can be said
+        return Path(root).name
 
 
 def _f(v) -> float:
@@ -160,6 +187,7 @@ def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
                 threads=(doc.get("bench") or {}).get("threads"),
                 success=succ,
                 precision=prec,
+                **_diagnosis_fields(doc.get("diagnosis")),
             )
         )
     if not runs:
@@ -248,30 +276,66 @@ def _table(rows: list[tuple[str, str, dict[str, Stat], Stat, Stat]]) -> list[str
 
 
 # --------------------------------------------------------------------------- #
-# the report
+# the report: aggregation (pure), rendering, writing
 # --------------------------------------------------------------------------- #
-def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path:
-    """Write the report of the bench in ``results_dir``; return the markdown path.
+@dataclass(frozen=True)
+class Summary:
+    """What a report says, aggregated from a results folder (no formatting, no files written).
 
-    Parameters
+    Attributes
     ----------
-    results_dir : path
-        A folder written by ``covviz bench``.
-    out : path, optional
-        The markdown file (default ``results_dir/report.md``); figures go to
-        ``img/`` beside it.
+    results_dir : Path
+    manifest : dict or None
+    runs : list of Run
+    thresholds : dict
+        As :func:`load_runs` returns them.
+    trackers : list of str
+        In the manifest's order, then the others by name.
+    sequences : list of str
+    seq_frames : dict
+        Frames per sequence.
+    stochastic : set of str
+        Trackers run with seeds.
+    n_seeds : int
+        Seeds in the manifest (0 without one).
+    by : dict
+        ``(sequence, tracker) -> [Run]``, sorted by seed.
+    per_sequence : dict
+        ``sequence -> rows`` of :func:`_table`.
+    overall : list
+        Rows of :func:`_table` over all sequences.
+    incomplete : list of str
+        Trackers that miss some runs.
+    causes : dict
+        ``tracker -> {cause: losses}`` over every sequence and seed.
+    causes_by_sequence : dict
+        ``(sequence, tracker) -> {cause: losses}`` over seeds.
+    suspects : dict
+        ``tracker -> covviz.diagnosis.score_suspects`` totals over every run.
     """
+
+    results_dir: Path
+    manifest: dict | None
+    runs: list
+    thresholds: dict
+    trackers: list
+    sequences: list
+    seq_frames: dict
+    stochastic: set
+    n_seeds: int
+    by: dict
+    per_sequence: dict
+    overall: list
+    incomplete: list
+    causes: dict = field(default_factory=dict)
+    causes_by_sequence: dict = field(default_factory=dict)
+    suspects: dict = field(default_factory=dict)
+
+
+def summarize(results_dir: str | Path) -> Summary:
+    """Aggregate the results of a bench folder: per sequence (over seeds) and overall (per seed, then over seeds)."""
     d = Path(results_dir)
     manifest, runs, thr = load_runs(d)
-    md_path = Path(out) if out is not None else d / REPORT_NAME
-    if md_path.suffix.lower() != ".md":
-        raise ResultError(f"--out must be a markdown file (.md), got {md_path}")
-    img_dir = md_path.parent / IMG_DIR
-    try:
-        img_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ResultError(f"cannot write to {img_dir}: {exc.strerror or exc}") from None
-
     preferred = list((manifest or {}).get("trackers", []))
     trackers = _order({r.tracker for r in runs}, preferred)
     if manifest is not None:
@@ -349,10 +413,114 @@ def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path
             )
         )
 
-    # ---- figures -------------------------------------------------------------
-    figs = _figures(img_dir, sequences, trackers, by, thr)
+    # ---- failures: causes of the losses, and the label-free suspects against them ----------
+    from covviz.diagnosis import score_suspects
 
-    # ---- markdown ------------------------------------------------------------
+    causes: dict = {}
+    by_seq: dict = {}
+    suspects: dict = {}
+    for r in runs:
+        for c in r.causes:
+            causes.setdefault(r.tracker, {}).setdefault(c, 0)
+            causes[r.tracker][c] += 1
+            by_seq.setdefault((r.sequence, r.tracker), {}).setdefault(c, 0)
+            by_seq[(r.sequence, r.tracker)][c] += 1
+        sc = score_suspects([{"frame": f} for f in r.suspects], list(r.losses))
+        tot = suspects.setdefault(r.tracker, dict.fromkeys(sc, 0))
+        for k, v in sc.items():
+            tot[k] += v
+    return Summary(
+        results_dir=d,
+        manifest=manifest,
+        runs=runs,
+        thresholds=thr,
+        trackers=trackers,
+        sequences=sequences,
+        seq_frames=seq_frames,
+        stochastic=stochastic,
+        n_seeds=n_seeds_manifest,
+        by=by,
+        per_sequence=per_seq,
+        overall=overall_rows,
+        incomplete=incomplete,
+        causes=causes,
+        causes_by_sequence=by_seq,
+        suspects=suspects,
+    )
+
+
+def _failure_section(summary: Summary) -> list[str]:
+    """Losses by diagnosed cause (overall and per sequence) and how far the label-free suspects can be trusted."""
+    from covviz.diagnosis import CAUSES, MATCH_AFTER, MATCH_BEFORE
+
+    if not summary.suspects:
+        return []
+    trackers = [t for t in summary.trackers if t in summary.suspects]
+    cols = [c for c in (*CAUSES, "unknown") if any(c in summary.causes.get(t, {}) for t in trackers)]
+    L = [
+        "## Failures and their causes",
+        "",
+        (
+            "Every loss of track (IoU below 0.1) was diagnosed from the frames between the start of its drift and "
+            "the loss (`covviz.diagnosis`; the rules and their thresholds are in the results' `diagnosis_config`). "
+            "Counts over all sequences and seeds; *unknown*: no rule of the vocabulary held."
+        ),
+        "",
+    ]
+    if cols:
+        L += ["| tracker | losses | " + " | ".join(c.replace("_", " ") for c in cols) + " |",
+              "|---|---:|" + "---:|" * len(cols)]
+        for t in trackers:
+            c = summary.causes.get(t, {})
+            L.append(f"| `{t}` | {sum(c.values())} | " + " | ".join(str(c.get(k, 0) or "·") for k in cols) + " |")
+        L += ["", "Per sequence (losses by cause, all seeds):", "",
+              "| sequence | " + " | ".join(f"`{t}`" for t in trackers) + " |", "|---|" + "---|" * len(trackers)]
+        for seq in summary.sequences:
+            cells = []
+            for t in trackers:
+                c = summary.causes_by_sequence.get((seq, t), {})
+                cells.append(", ".join(f"{k.replace('_', ' ')} {v}" for k, v in sorted(c.items())) or "—")
+            L.append(f"| {seq} | " + " | ".join(cells) + " |")
+    else:
+        L.append("No tracker lost its target.")
+    L += [
+        "",
+        "### Suspects without ground truth: how far to trust them",
+        "",
+        (
+            "A user's own video has no ground truth; the diagnosis then raises *suspects* from the filter's own "
+            "numbers (weights collapsing, the best distance leaving its running range, a second mode of the weights, "
+            f"the scale running away). Scored here against the losses: a suspect is right when it falls between "
+            f"{MATCH_BEFORE} frames before a drift began and {MATCH_AFTER} frames after the loss (precision), and a "
+            "loss is found when at least one suspect falls in that window (recall)."
+        ),
+        "",
+        "| tracker | suspects | precision | losses | recall |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for t in trackers:
+        sc = summary.suspects[t]
+        prec = sc["true_positives"] / sc["suspects"] if sc["suspects"] else float("nan")
+        rec = sc["losses_found"] / sc["losses"] if sc["losses"] else float("nan")
+        L.append(f"| `{t}` | {sc['suspects']} | {_fmt_pct(prec)} | {sc['losses']} | {_fmt_pct(rec)} |")
+    return [*L, ""]
+
+
+def _fmt_pct(v: float) -> str:
+    return "—" if not np.isfinite(v) else f"{100 * v:.0f}%"
+
+
+def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
+    """The markdown of a report written to ``md_path``: every path in it relative to that file.
+
+    No absolute path of the machine that made it appears: the results folder and the
+    sequences' root are given relative to the report (as the figures are).
+    """
+    md_path = Path(md_path)
+    d, manifest, runs, thr = summary.results_dir, summary.manifest, summary.runs, summary.thresholds
+    trackers, sequences, seq_frames = summary.trackers, summary.sequences, summary.seq_frames
+    stochastic, n_seeds_manifest, by = summary.stochastic, summary.n_seeds, summary.by
+    per_seq, overall_rows, incomplete = summary.per_sequence, summary.overall, summary.incomplete
     rel = lambda p: Path(os.path.relpath(p, md_path.parent)).as_posix()
     L: list[str] = ["# covviz benchmark", ""]
     n_files = len(runs)
@@ -363,7 +531,7 @@ def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path
         L += [
             f"Results in {where}: {n_files} runs of {len(trackers)} trackers "
             f"on {len(sequences)} sequences from "
-            f"`{manifest.get('root')}`"
+            f"`{_relative_root(manifest.get('root'), md_path)}`"
             + (f", first {manifest['max_frames']} frames of each" if manifest.get("max_frames") else "")
             + ".",
             (
@@ -435,6 +603,7 @@ def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path
     else:
         L += [f"Needs `{OURS}` or `{BASELINE}` results; this bench has neither.", ""]
 
+    L += _failure_section(summary)
     L += ["## Success AUC per sequence", ""]
     L += [
         "| sequence | frames | " + " | ".join(f"`{t}`" for t in trackers) + " |",
@@ -485,8 +654,34 @@ def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path
         ),
         "",
     ]
+    return "\n".join(L).rstrip("\n") + "\n"
+
+
+def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path:
+    """Write the report of the bench in ``results_dir``; return the markdown path.
+
+    Parameters
+    ----------
+    results_dir : path
+        A folder written by ``covviz bench``.
+    out : path, optional
+        The markdown file (default ``results_dir/report.md``); figures go to
+        ``img/`` beside it.
+    """
+    d = Path(results_dir)
+    md_path = Path(out) if out is not None else d / REPORT_NAME
+    if md_path.suffix.lower() != ".md":
+        raise ResultError(f"--out must be a markdown file (.md), got {md_path}")
+    summary = summarize(d)
+    img_dir = md_path.parent / IMG_DIR
+    try:
+        img_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ResultError(f"cannot write to {img_dir}: {exc.strerror or exc}") from None
+    figs = _figures(img_dir, summary.sequences, summary.trackers, summary.by, summary.thresholds)
+    text = render(summary, md_path, figs)
     tmp = md_path.with_name(md_path.name + ".part")
-    tmp.write_text("\n".join(L).rstrip("\n") + "\n")
+    tmp.write_text(text)
     os.replace(tmp, md_path)
     return md_path
 

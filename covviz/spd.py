@@ -31,8 +31,10 @@ import numpy as np
 
 __all__ = [
     "check_spd",
+    "distance_jbld",
     "distance_logeuclid",
     "distance_riemann",
+    "distance_riemann_log",
     "exp_map",
     "expm",
     "expm_taylor",
@@ -47,6 +49,7 @@ __all__ = [
     "pairwise_distance",
     "powm",
     "regularize",
+    "spread_riemann",
     "sqrtm",
     "sym",
 ]
@@ -109,6 +112,15 @@ def _positive(w: np.ndarray) -> np.ndarray:
     return w
 
 
+def _sqrt_invsqrt(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``C^½`` and ``C^-½`` of SPD matrices from one ``eigh`` (the whitening of the maps and means)."""
+    w, V = np.linalg.eigh(C)
+    w = _positive(w)
+    Vt = np.swapaxes(V, -1, -2)
+    r = np.sqrt(w)
+    return (V * r[..., None, :]) @ Vt, (V * (1.0 / r)[..., None, :]) @ Vt
+
+
 # --------------------------------------------------------------------------- #
 # matrix functions
 # --------------------------------------------------------------------------- #
@@ -127,9 +139,9 @@ def expm_taylor(S: np.ndarray, order: int = 11) -> np.ndarray:
 
     The same result as :func:`expm` (to ~1e-14 relative for symmetric input)
     using only batched matrix products, which for stacks of small matrices is
-    several times faster than one ``eigh`` per matrix. The tracker uses it
-    for ``expm(-L/2)`` of every particle's template, and the recorder's
-    diagnostics to turn log-space templates into covariances.
+    several times faster than one ``eigh`` per matrix.
+    :func:`distance_riemann_log` uses it for ``expm(-L/2)`` of every
+    particle's template.
 
     The polynomial is evaluated by the Paterson–Stockmeyer scheme: with ``X²``
     and ``X³`` computed once, Horner's rule runs in powers of ``X³`` over
@@ -242,6 +254,37 @@ def distance_riemann(A: np.ndarray, B: np.ndarray, squared: bool = False) -> np.
     return d2 if squared else np.sqrt(d2)
 
 
+def distance_riemann_log(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``d(expm(L), B)`` for symmetric log-space ``L`` and SPD ``B``, shape ``(...)``.
+
+    ``expm(L)^(-1/2) = expm(-L/2) =: E`` exactly, so the generalized
+    eigenvalues of the pair are those of ``E B E``: one matrix exponential
+    (:func:`expm_taylor`, batched products only), two products and
+    ``eigvalsh``. Equal to ``distance_riemann(expm(L), B)`` to ~1e-12 relative
+    and cheaper than an ``eigh`` of every ``L`` (the manifold tracker's
+    template distances, 600 a frame).
+
+    The Taylor scaling is chosen per batch (the largest norm in it), so a
+    distance can differ in the last bits with the batch it is computed in:
+    callers that need bit-identical results keep their batches fixed.
+
+    Parameters
+    ----------
+    L : ndarray, shape (..., d, d)
+        Symmetric (a template in log space).
+    B : ndarray, shape (..., d, d)
+        SPD (an observed descriptor).
+
+    Raises
+    ------
+    ValueError
+        If ``B`` is not positive-definite (a non-positive eigenvalue of ``E B E``).
+    """
+    E = expm_taylor(-0.5 * np.asarray(L, dtype=np.float64))
+    mu = np.linalg.eigvalsh(E @ _check_square(B, "B") @ E)
+    return np.sqrt(np.sum(np.log(_positive(mu)) ** 2, axis=-1))
+
+
 def logdet(A: np.ndarray) -> np.ndarray:
     """``log det A`` of SPD matrices through a Cholesky factor, shape ``(...)``.
 
@@ -282,6 +325,28 @@ def jbld(A: np.ndarray, B: np.ndarray, logdet_a=None, logdet_b=None) -> np.ndarr
     la = logdet(A) if logdet_a is None else np.asarray(logdet_a)
     lb = logdet(B) if logdet_b is None else np.asarray(logdet_b)
     return logdet(0.5 * (A + B)) - 0.5 * (la + lb)
+
+
+def distance_jbld(A: np.ndarray, B: np.ndarray, logdet_a=None, logdet_b=None) -> np.ndarray:
+    """``sqrt(8·J(A, B))``: the Jensen–Bregman LogDet divergence as a distance, shape ``(...)``.
+
+    Equal to the affine-invariant distance to second order (``8·J = d² + O(d⁴)``,
+    see :func:`jbld`), with its invariances, at the cost of Cholesky
+    factorisations. The manifold tracker's quadrant distances.
+
+    Raises
+    ------
+    ValueError
+        If ``J`` is negative beyond rounding (``< -1e-9``), which only
+        non-SPD input gives.
+    """
+    J = jbld(A, B, logdet_a=logdet_a, logdet_b=logdet_b)
+    if np.any(J < -1e-9):
+        raise ValueError(
+            f"negative LogDet divergence ({np.min(J):.3g}): an input is not positive-definite; "
+            "regularise it with covviz.spd.regularize"
+        )
+    return np.sqrt(8.0 * np.maximum(J, 0.0))
 
 
 def distance_logeuclid(A: np.ndarray, B: np.ndarray, squared: bool = False) -> np.ndarray:
@@ -364,12 +429,7 @@ def exp_map(C: np.ndarray, Y: np.ndarray) -> np.ndarray:
     Y : ndarray, shape (..., d, d)
         Tangent vector (symmetric) at ``C``.
     """
-    C = _check_square(C, "C")
-    w, V = np.linalg.eigh(C)
-    w = _positive(w)
-    Vt = np.swapaxes(V, -1, -2)
-    Cs = (V * np.sqrt(w)[..., None, :]) @ Vt
-    Cis = (V * (1.0 / np.sqrt(w))[..., None, :]) @ Vt
+    Cs, Cis = _sqrt_invsqrt(_check_square(C, "C"))
     return sym(Cs @ expm(sym(Cis @ Y @ Cis)) @ Cs)
 
 
@@ -378,12 +438,7 @@ def log_map(C: np.ndarray, P: np.ndarray) -> np.ndarray:
 
     The inverse of :func:`exp_map`; ``||log_map(C, P)||_C = d(C, P)``.
     """
-    C = _check_square(C, "C")
-    w, V = np.linalg.eigh(C)
-    w = _positive(w)
-    Vt = np.swapaxes(V, -1, -2)
-    Cs = (V * np.sqrt(w)[..., None, :]) @ Vt
-    Cis = (V * (1.0 / np.sqrt(w))[..., None, :]) @ Vt
+    Cs, Cis = _sqrt_invsqrt(_check_square(C, "C"))
     return sym(Cs @ logm(sym(Cis @ P @ Cis)) @ Cs)
 
 
@@ -437,9 +492,7 @@ def mean_riemann(
     def grad(M):
         # Whitened logs L_i = logm(M^-1/2 C_i M^-1/2): their weighted mean is the
         # (whitened) descent direction, and sum w_i |L_i|^2 the cost.
-        ev, V = np.linalg.eigh(M)
-        Ms = (V * np.sqrt(ev)) @ V.T
-        Mis = (V * (1.0 / np.sqrt(ev))) @ V.T
+        Ms, Mis = _sqrt_invsqrt(M)
         L = logm(sym(Mis @ C @ Mis))
         cost = float(np.einsum("i,ijk,ijk->", w, L, L))
         return Ms, np.einsum("i,ijk->jk", w, L), cost
@@ -465,6 +518,13 @@ def mean_riemann(
         else:
             nu *= 0.5
             if nu < 1e-10:
+                warnings.warn(
+                    f"mean_riemann stopped early after {it} iterations: no step lowers the cost "
+                    f"(gradient {np.linalg.norm(T):.2e} > tol {tol:.1e}); the mean is as accurate as "
+                    "rounding allows here",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
                 break
     else:
         warnings.warn(
@@ -474,6 +534,28 @@ def mean_riemann(
             stacklevel=2,
         )
     return (M, it) if return_iterations else M
+
+
+def spread_riemann(C: np.ndarray, init: np.ndarray | None = None, tol: float = 1e-9, maxiter: int = 100):
+    """Spread of a set of SPD matrices: their mean affine-invariant distance to the Karcher mean.
+
+    Parameters
+    ----------
+    C : ndarray, shape (n, d, d)
+    init : ndarray, shape (d, d), optional
+        Start of :func:`mean_riemann` (e.g. the previous call's mean, for a
+        slowly moving set).
+    tol, maxiter
+        As in :func:`mean_riemann`.
+
+    Returns
+    -------
+    spread : float
+    mean : ndarray, shape (d, d)
+        The Karcher mean.
+    """
+    M = mean_riemann(C, init=init, tol=tol, maxiter=maxiter)
+    return float(distance_riemann(M, C).mean()), M
 
 
 def _weights(n: int, weights: np.ndarray | None) -> np.ndarray:

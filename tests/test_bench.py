@@ -247,6 +247,11 @@ def test_report_out_elsewhere_links_figures_relatively(results, tmp_path):
     assert len(links) == 3
     for link in links:
         assert link.startswith("img/") and (md.parent / link).is_file()
+    # No absolute path of this machine: the results and the sequences' root are named relative to it.
+    assert "/tmp" not in text and str(tmp_path) not in text and str(Path.home()) not in text
+    manifest = json.loads((results / "bench_manifest.json").read_text())
+    rel_root = re.search(r"sequences from `([^`]+)`", text).group(1)
+    assert (md.parent / rel_root).resolve() == Path(manifest["root"]).resolve()
 
 
 # --------------------------------------------------------------------------- #
@@ -420,7 +425,7 @@ def test_failure_counter_reads_record_extras():
             Frame(i, np.zeros((2, 2, 3), np.uint8)), [FrameRecord(i, np.zeros(4), extras={"failed": failed})]
         )
     fc.on_frame(Frame(4, np.zeros((2, 2, 3), np.uint8)), [FrameRecord(4, np.zeros(4))])
-    assert fc.failed == [1, 3]
+    assert fc.failed == [2, 4]  # frame numbers (1-based) of the indices 1 and 3
 
 
 def test_paper_figure_with_ours_and_ipca(results):
@@ -440,3 +445,22 @@ def test_paper_figure_with_ours_and_ipca(results):
     assert "![track duration rate and accuracy](img/bench_on_track.png)" in md
     assert "| `ipca` | 4/4 |" in md
     assert (results / "img" / "bench_on_track.png").stat().st_size > 5000
+
+
+def test_report_counts_losses_by_cause_and_scores_the_suspects(results):
+    """The failure section reads each result's drift diagnosis (here written by hand into one result)."""
+    js = result_paths(results, "alpha", "manifold", 0)[1]
+    doc = json.loads(js.read_text())
+    doc["diagnosis"] = {
+        "events": [{"kind": "drift", "frame": 3}, {"kind": "lost", "frame": 5}],
+        "diagnoses": [{"cause": "occlusion", "lost_at": 5}],
+        "suspects": [{"frame": 4, "kind": "collapse"}, {"frame": 40, "kind": "second_mode"}],
+    }
+    js.write_text(json.dumps(doc))
+    md = write_report(results).read_text()
+    section = md[md.index("## Failures and their causes") : md.index("## Success AUC per sequence")]
+    row = next(line for line in section.splitlines() if line.startswith("| `manifold` | 1 |"))
+    assert "| 1 |" in row  # one loss, of cause occlusion
+    assert "| alpha | " in section and "occlusion 1" in section
+    # Suspects: frame 4 is in [3 - 10, 5 + 5] (right), frame 40 is not: precision 50%, the loss found.
+    assert "| `manifold` | 2 | 50% | 1 | 100% |" in section

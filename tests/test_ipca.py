@@ -25,12 +25,12 @@ from covviz.trackers.ipca import (
     box_to_state,
     reconstruction_errors,
     resample_indices,
+    sample_templates,
     sklm,
     state_corners,
     state_to_box,
     template_grid,
     update_model,
-    warp_patches,
 )
 
 CAR4 = Path(__file__).resolve().parents[2] / "shared" / "sequences" / "Car4"
@@ -146,7 +146,7 @@ def test_warp_identity_state_is_a_bilinear_resize_of_the_box():
     img = _smooth_image()
     # Integer-aligned boxes at least 32 px wide (cv2.resize then never reads beyond the crop).
     for x, y, w, h in [(37, 21, 64, 48), (10, 30, 100, 70), (50, 40, 32, 32)]:
-        patch = warp_patches(img, box_to_state([[x, y, w, h]]), grid="centred")[0]
+        patch = sample_templates(img, box_to_state([[x, y, w, h]]), grid="centred")[0]
         ref = cv2.resize(img[y : y + h, x : x + w], (32, 32), interpolation=cv2.INTER_LINEAR)
         step = np.abs(np.diff(img, axis=0)).max() + np.abs(np.diff(img, axis=1)).max()
         np.testing.assert_allclose(patch, ref, atol=step * REMAP_STEP)
@@ -162,7 +162,7 @@ def test_warp_samples_a_linear_image_exactly_at_the_affine_points(rng, grid):
     yy, xx = np.mgrid[0:H, 0:W]
     img = (a * (xx + 0.5) + b * (yy + 0.5) + c0).astype(np.float32)
     states = _random_states(rng, 30)
-    patches = warp_patches(img, states, grid=grid)
+    patches = sample_templates(img, states, grid=grid)
     px, py = _sample_points(affine_matrices(states), grid)
     inside = (px > 0.5) & (px < W - 0.5) & (py > 0.5) & (py < H - 0.5)
     assert inside.mean() > 0.9
@@ -177,7 +177,7 @@ def test_warp_matches_an_exact_bilinear_oracle(rng, grid):
     img = cv2.GaussianBlur(img, (0, 0), 1.5)
     states = _random_states(rng, 8, centre=(65.0, 50.0))
     states[:, 2] *= 0.6  # some regions cross the border
-    patches = warp_patches(img, states, grid=grid)
+    patches = sample_templates(img, states, grid=grid)
     PX, PY = _sample_points(affine_matrices(states), grid)
     step = np.abs(np.diff(img, axis=0)).max() + np.abs(np.diff(img, axis=1)).max()
     for p, px, py in zip(patches, PX, PY):
@@ -191,15 +191,15 @@ def test_warp_rotated_state_samples_rotated_content(rng):
     img = rng.random((80, 90)).astype(np.float32)
     # A 32x32 box centred on a pixel corner: every sample lands on a pixel centre, also at 90 degrees.
     st = box_to_state([[20.0, 15.0, 32.0, 32.0]])
-    p0 = warp_patches(img, st, grid="centred")[0]
+    p0 = sample_templates(img, st, grid="centred")[0]
     np.testing.assert_array_equal(p0, img[15:47, 20:52])
     for quarter in (1, 2, 3):
         s = st.copy()
         s[0, 3] = quarter * np.pi / 2
         # The region turns clockwise on screen, so its content turns counter-clockwise in the patch.
-        np.testing.assert_allclose(warp_patches(img, s, grid="centred")[0], np.rot90(p0, quarter), atol=1e-6)
+        np.testing.assert_allclose(sample_templates(img, s, grid="centred")[0], np.rot90(p0, quarter), atol=1e-6)
     # The reference convention models the region 0.5 + 0.5 * scale = 1 px right of and below the box.
-    np.testing.assert_array_equal(warp_patches(img, st, grid="reference")[0], img[16:48, 21:53])
+    np.testing.assert_array_equal(sample_templates(img, st, grid="reference")[0], img[16:48, 21:53])
 
 
 def test_reference_grid_is_the_centred_grid_shifted(rng):
@@ -210,18 +210,18 @@ def test_reference_grid_is_the_centred_grid_shifted(rng):
     moved = states.copy()
     moved[:, :2] += affine_matrices(states)[:, :, :2] @ np.array([0.5, 0.5]) + 0.5
     np.testing.assert_allclose(
-        warp_patches(img, states, grid="reference"), warp_patches(img, moved, grid="centred"), atol=2e-3
+        sample_templates(img, states, grid="reference"), sample_templates(img, moved, grid="centred"), atol=2e-3
     )
 
 
 def test_warp_pixels_outside_the_image_are_zero(rng):
     img = (0.2 + 0.8 * rng.random((60, 70))).astype(np.float32)
     far = box_to_state([[500.0, -300.0, 40.0, 30.0]])
-    assert np.all(warp_patches(img, far) == 0)
-    assert np.all(warp_patches(img, far, grid="centred") == 0)
+    assert np.all(sample_templates(img, far) == 0)
+    assert np.all(sample_templates(img, far, grid="centred") == 0)
     # Box from x = -16 to 16: its left half samples x < 0 (outside), its right half pixel columns 0..15.
     st = box_to_state([[-16.0, 10.0, 32.0, 32.0]])
-    p = warp_patches(img, st, grid="centred")[0]
+    p = sample_templates(img, st, grid="centred")[0]
     assert np.all(p[:, :16] == 0)
     np.testing.assert_array_equal(p[:, 16:], img[10:42, 0:16])
 
@@ -229,9 +229,9 @@ def test_warp_pixels_outside_the_image_are_zero(rng):
 def test_warp_many_particles_in_chunks(rng):
     img = rng.random((50, 60)).astype(np.float32)
     states = _random_states(rng, 1100, centre=(30.0, 25.0))  # 1100 * 32 rows > OpenCV's SHRT_MAX
-    p = warp_patches(img, states)
+    p = sample_templates(img, states)
     assert p.shape == (1100, 32, 32) and p.dtype == np.float32
-    np.testing.assert_array_equal(p[1050:], warp_patches(img, states[1050:]))
+    np.testing.assert_array_equal(p[1050:], sample_templates(img, states[1050:]))
 
 
 # --------------------------------------------------------------------------- #

@@ -14,24 +14,16 @@ import json
 
 import numpy as np
 import pytest
-import scipy.linalg
-from pyriemann.geometry import distance as pr_distance
 from scipy.special import logsumexp
 
 from covviz import spd
 from covviz.features import pose_corners, pose_to_box
 from covviz.metrics import iou
+from covviz.observation import quadrant_term
 from covviz.records import STAGES, FrameRecord
 from covviz.sequences import SyntheticSequence
 from covviz.trackers.base import IdentityTracker, Tracker, check_init_box
-from covviz.trackers.manifold import (
-    ManifoldConfig,
-    ManifoldTracker,
-    make,
-    quadrant_distances,
-    quadrant_term,
-    riemann_distance_to_templates,
-)
+from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker, make
 
 D = 9
 N_TRACK = 60  # frames of the tracking-quality test
@@ -67,29 +59,6 @@ def random_spd(rng, n, cond):
     w = np.exp(rng.uniform(0, np.log(cond), (n, D)))
     w[:, 0], w[:, -1] = 1.0, cond
     return spd.sym((Q * w[:, None, :]) @ np.swapaxes(Q, 1, 2)) * rng.uniform(0.01, 10, (n, 1, 1))
-
-
-# --------------------------------------------------------------------------- #
-# the distance of the hot path
-# --------------------------------------------------------------------------- #
-@pytest.mark.parametrize("norm", [0.05, 1.0, 8.0])
-@pytest.mark.parametrize("cond", [1.0 + 1e-9, 1e3, 1e6])
-def test_distance_to_templates_matches_spd_and_pyriemann(rng, norm, cond):
-    L = random_sym(rng, 24, norm)
-    B = random_spd(rng, 24, cond)
-    d = riemann_distance_to_templates(L, B)
-    assert d.shape == (24,)
-    ours = spd.distance_riemann(B, spd.expm(L))
-    np.testing.assert_allclose(d, ours, rtol=1e-8, atol=1e-10)
-    # Independent oracle: scipy's expm and pyriemann's distance.
-    C = np.stack([scipy.linalg.expm(x) for x in L])
-    ref = pr_distance.distance_riemann(B, C)
-    np.testing.assert_allclose(d, ref, rtol=1e-7, atol=1e-9)
-
-
-def test_distance_to_templates_zero_when_template_is_observation(rng):
-    B = random_spd(rng, 10, 100.0)
-    np.testing.assert_allclose(riemann_distance_to_templates(spd.logm(B), B), 0.0, atol=1e-6)
 
 
 # --------------------------------------------------------------------------- #
@@ -232,9 +201,9 @@ def check_record(rec: FrameRecord, tr: ManifoldTracker, index: int):
                                rtol=1e-7, atol=1e-9)
     # The estimate is the MMSE pose, and the box/corners are its geometry.
     np.testing.assert_allclose(rec.pose, w @ rec.particle_poses, rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(rec.box, pose_to_box(rec.pose, tr.base_wh)[0], atol=1e-9)
-    np.testing.assert_allclose(rec.corners, pose_corners(rec.pose, tr.base_wh)[0], atol=1e-9)
-    np.testing.assert_allclose(rec.particle_corners, pose_corners(rec.particle_poses, tr.base_wh), atol=1e-9)
+    np.testing.assert_allclose(rec.box, pose_to_box(rec.pose, tr.model.base_wh)[0], atol=1e-9)
+    np.testing.assert_allclose(rec.corners, pose_corners(rec.pose, tr.model.base_wh)[0], atol=1e-9)
+    np.testing.assert_allclose(rec.particle_corners, pose_corners(rec.particle_poses, tr.model.base_wh), atol=1e-9)
     # Timings of every expensive stage.
     assert {"warp", "features", "covariance", "distances", "resample", "total"} <= set(rec.timings)
     assert set(rec.timings) <= set(STAGES) | {"total"}
@@ -311,7 +280,7 @@ def test_large_target_is_downsampled_and_still_spd(synth):
     _seq, frames = synth
     tr = ManifoldTracker(ManifoldConfig(n_particles=16), rng=4)
     tr.init(frames[0], [60, 40, 150, 140])
-    assert tr._step > 1
+    assert tr.model.step > 1
     box = tr.update(frames[1])
     assert np.all(np.isfinite(box))
     check_record(tr.last_record, tr, 1)
@@ -371,6 +340,9 @@ def _assert_same(x, y, path="record"):
         assert set(x) == set(y), path
         for k in x:
             _assert_same(x[k], y[k], f"{path}.{k}")
+    elif dataclasses.is_dataclass(x) and not isinstance(x, type):  # the frozen observation model
+        assert type(x) is type(y), path
+        _assert_same(dataclasses.asdict(x), dataclasses.asdict(y), path)
     elif isinstance(x, float) and np.isnan(x):
         assert np.isnan(y), path
     else:
@@ -419,24 +391,6 @@ def test_identity_tracker_returns_the_initial_box(synth):
 # --------------------------------------------------------------------------- #
 # the quadrant term of the likelihood
 # --------------------------------------------------------------------------- #
-def test_quadrant_term_drops_the_largest():
-    q = np.array([[1.0, 2.0, 3.0, 10.0], [0.0, 0.0, 0.0, 0.0], [2.0, 2.0, 2.0, 2.0]])
-    np.testing.assert_allclose(quadrant_term(q), [(1 + 4 + 9) / 3, 0.0, 4.0])
-
-
-def test_quadrant_distances_are_jbld_and_near_riemann(rng):
-    ref = random_spd(rng, 4, 50.0)
-    # Nearby quadrants: 8 J tracks d² closely; far ones: still the exact divergence.
-    S = random_sym(rng, 12, 0.2).reshape(3, 4, D, D)
-    Q = spd.exp_map(ref[None], S)
-    q = quadrant_distances(Q, ref, spd.logdet(ref))
-    assert q.shape == (3, 4)
-    np.testing.assert_allclose(q, np.sqrt(8 * spd.jbld(ref[None], Q)), rtol=1e-12)
-    d = spd.distance_riemann(ref[None], Q)
-    np.testing.assert_allclose(q, d, rtol=0.02)
-    np.testing.assert_allclose(quadrant_distances(ref[None], ref, spd.logdet(ref)), 0.0, atol=1e-6)
-
-
 def test_weights_follow_the_likelihood_distances(synth):
     """log w = normalise(-d_eff² / 2σ²) with d_eff² = d² + weight · quadrant_term(q), and the
     diagnostics' likelihood_distances gives the same d_eff at a particle's pose and template."""
@@ -444,7 +398,7 @@ def test_weights_follow_the_likelihood_distances(synth):
     cfg = ManifoldConfig(n_particles=40, quadrant_weight=0.7)
     tr = ManifoldTracker(cfg, rng=3)
     tr.init(frames[0], seq.init_box)
-    assert tr.quadrant_reference.shape == (4, D, D)
+    assert tr.model.quadrant_reference.shape == (4, D, D)
     tr.update(frames[1])  # resamples: the next frame starts from uniform weights
     tr.update(frames[2])
     rec = tr.last_record
@@ -453,8 +407,9 @@ def test_weights_follow_the_likelihood_distances(synth):
     np.testing.assert_allclose(d_eff, np.sqrt(rec.distances**2 + 0.7 * quadrant_term(q)), rtol=1e-12)
     ll = -(d_eff**2) / (2 * cfg.likelihood_sigma**2)
     np.testing.assert_allclose(rec.log_weights, ll - logsumexp(ll), atol=1e-9)
+    gray = tr.model.prepare(frames[2])
     for i in (0, 17, 39):
-        di = tr.likelihood_distances(frames[2], rec.particle_poses[i], rec.templates[i])
+        di = tr.model.likelihood_distances(gray, rec.particle_poses[i], rec.templates[i])
         np.testing.assert_allclose(di, d_eff[i : i + 1], rtol=1e-9)
 
 
@@ -464,10 +419,10 @@ def test_quadrants_off_is_the_papers_likelihood(synth):
     tr.init(frames[0], seq.init_box)
     tr.update(frames[1])
     rec = tr.last_record
-    assert tr.quadrant_reference is None and rec.extras["quadrant_distances"] is None
+    assert tr.model.quadrant_reference is None and rec.extras["quadrant_distances"] is None
     np.testing.assert_array_equal(rec.extras["likelihood_distances"], rec.distances)
     np.testing.assert_allclose(
-        tr.likelihood_distances(frames[1], rec.particle_poses[:3], rec.templates[0]),
+        tr.model.likelihood_distances(tr.model.prepare(frames[1]), rec.particle_poses[:3], rec.templates[0]),
         spd.distance_riemann(spd.expm(rec.templates[0]), rec.descriptors[:3]),
         rtol=1e-9,
     )

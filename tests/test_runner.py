@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import threading
 
-import numpy as np
 import pytest
 
 from covviz.runner import BackgroundObserver, ResultCollector, run
@@ -65,4 +64,16 @@ def test_tracker_error_drains_the_queue_first(seq):
         run(Breaks(), seq, [BackgroundObserver(inner)])
     assert inner.frames == list(range(10))  # every frame before the error was observed
     assert inner.ended == [10]
-    np.testing.assert_array_equal(inner.frames, np.arange(10))
+    assert threading.get_ident() not in inner.threads
+
+
+def test_every_observer_ends_even_when_one_fails_at_the_end(seq):
+    # The failing observer comes first: the collector after it must still get the results.
+    class FailsAtEnd(Recorder):
+        def on_end(self, results):
+            raise OSError("disk full")
+
+    collector = ResultCollector()
+    with pytest.raises(OSError, match="disk full"):
+        run(IdentityTracker(), seq, [FailsAtEnd(), collector])
+    assert collector.results and len(collector.results[0].boxes) == len(seq)

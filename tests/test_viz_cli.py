@@ -61,8 +61,8 @@ def test_track_saves_a_recording(tmp_path):
     assert f"recording in {rrd}" in out
     assert rrd_verify(rrd).returncode == 0
     t, s = read_recording(rrd)
-    assert set(t[P.IMAGE]["EncodedImage:blob"]) == set(range(5))
-    assert set(t[P.TrackerPaths("manifold").cloud_kind("target")]["Points2D:positions"]) == {0, 2, 4}
+    assert set(t[P.IMAGE]["EncodedImage:blob"]) == set(range(1, 6))  # frame numbers are 1-based
+    assert set(t[P.TrackerPaths("manifold").cloud_kind("target")]["Points2D:positions"]) == {1, 3, 5}  # every 2nd frame from frame 1
     assert "covviz track" in s[P.CONFIG]["TextDocument:text"][0]
 
 
@@ -168,7 +168,7 @@ def test_ctrl_c_leaves_a_recording_with_every_frame_before_it(tmp_path):
     assert rrd_verify(rrd).returncode == 0
     t, s = read_recording(rrd)
     frames = set(t[P.IMAGE]["EncodedImage:blob"])
-    assert frames and frames == set(range(max(frames) + 1))  # every frame up to the interruption
+    assert frames and frames == set(range(1, max(frames) + 1))  # every frame up to the interruption
     assert set(boxes(t, P.TrackerPaths("manifold").box)) == frames
     assert "interrupted" in s[P.SUMMARY]["TextDocument:text"][0]
 

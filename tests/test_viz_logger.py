@@ -86,7 +86,17 @@ def test_entity_paths(run):
         m.spread,
         m.iou,
         m.center_error,
-        m.tensors,
+        f"{m.heatmap}/image",
+        f"{m.heatmap}/axes",
+        f"{m.zoom}/patches",
+        f"{m.slices}/estimate",
+        f"{m.slices}/truth",
+        m.why_series("best_truth"),
+        m.why_series("best_est"),
+        m.why_series("d_truth"),
+        m.why_series("reach"),
+        f"{m.cloud_health}/gap",
+        f"{m.cloud_health}/stress",
         m.timing("total"),
         m.timing("warp"),
         m.cloud_kind("top"),
@@ -107,12 +117,30 @@ def test_entity_paths(run):
 
 def test_every_frame_is_on_the_frame_timeline(run):
     t = run["temporal"]
-    assert set(t[P.IMAGE]["EncodedImage:blob"]) == set(range(N_FRAMES))
-    assert set(boxes(t, P.TrackerPaths("identity").box)) == set(range(N_FRAMES))
-    # Particles exist from frame 1 (frame 0 is the initialisation).
-    assert set(t[P.TrackerPaths("manifold").particles]["LineStrips2D:strips"]) == set(range(1, N_FRAMES))
-    # The time timeline: seconds at the synthetic frame rate.
-    assert run["seq"].frame_rate
+    frames = set(range(1, N_FRAMES + 1))  # frame numbers, 1-based: frame 1 is the first image
+    assert set(t[P.IMAGE]["EncodedImage:blob"]) == frames
+    assert set(boxes(t, P.TrackerPaths("identity").box)) == frames
+    # Particles exist from frame 2 (frame 1 is the initialisation).
+    assert set(t[P.TrackerPaths("manifold").particles]["LineStrips2D:strips"]) == frames - {1}
+
+
+
+def test_time_timeline_is_seconds_at_the_frame_rate(run):
+    """Every logged frame also sits on the `time` timeline, at frame / frame_rate seconds."""
+    import pyarrow as pa
+    from rerun.chunk import RrdReader
+
+    fps = run["seq"].frame_rate
+    pairs = {}
+    for ch in RrdReader(str(run["path"])).stream():
+        if ch.entity_path.lstrip("/") != P.IMAGE or ch.is_static:
+            continue
+        rb = ch.to_record_batch()
+        ns = rb.column(P.TIME_TIMELINE).cast(pa.int64()).to_pylist()  # durations, nanoseconds
+        pairs.update(zip(rb.column(P.FRAME_TIMELINE).to_pylist(), ns))
+    assert set(pairs) == set(range(1, N_FRAMES + 1))  # frame numbers are 1-based, as users see them
+    for f, t in pairs.items():
+        assert t == pytest.approx((f - 1) / fps * 1e9, abs=1.0), f
 
 
 def test_boxes_equal_the_records(run):
@@ -120,10 +148,10 @@ def test_boxes_equal_the_records(run):
     for j, name in enumerate(["manifold", "identity"]):
         logged = boxes(t, P.TrackerPaths(name).box)
         for f, recs in enumerate(run["col"].records):
-            np.testing.assert_allclose(logged[f], recs[j].box, rtol=1e-5, atol=1e-4)
+            np.testing.assert_allclose(logged[f + 1], recs[j].box, rtol=1e-5, atol=1e-4)
     gt = boxes(t, P.GROUND_TRUTH)
     for f, frame in enumerate(run["col"].frames):
-        np.testing.assert_allclose(gt[f], frame.gt, rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(gt[f + 1], frame.gt, rtol=1e-5, atol=1e-4)
 
 
 def test_particles_and_weights_equal_the_records(run):
@@ -136,8 +164,8 @@ def test_particles_and_weights_equal_the_records(run):
     top_strips = last(t, p.top, "LineStrips2D:strips")
     top_d, top_dl = last(t, p.top, "distance"), last(t, p.top, "likelihood_distance")
     top_q = [last(t, p.top, f"quadrant_distance_{j}") for j in range(4)]
-    for f in range(1, N_FRAMES):
-        rec = run["col"].records[f][0]
+    for i in range(1, N_FRAMES):
+        rec, f = run["col"].records[i][0], i + 1  # index, frame number
         w = rec.weights
         level = weight_levels(w)
         order = np.argsort(level, kind="stable")
@@ -171,13 +199,13 @@ def test_scalars_equal_the_records(run):
     total = scalar_series(t, p.timing("total"))
     ious, ces = scalar_series(t, p.iou), scalar_series(t, p.center_error)
     spread = scalar_series(t, p.spread)
-    assert set(spread) == set(range(1, N_FRAMES))
-    for f in range(N_FRAMES):
-        rec, frame = run["col"].records[f][0], run["col"].frames[f]
+    assert set(spread) == set(range(2, N_FRAMES + 1))
+    for i in range(N_FRAMES):
+        rec, frame, f = run["col"].records[i][0], run["col"].frames[i], i + 1
         assert ious[f] == pytest.approx(float(iou(rec.box[None], frame.gt[None])[0]))
         assert ces[f] == pytest.approx(float(center_error(rec.box[None], frame.gt[None])[0]))
         assert total[f] == pytest.approx(rec.timings["total"] * 1e3)
-        if f == 0:
+        if i == 0:
             assert f not in ess
             continue
         w = rec.weights
@@ -187,34 +215,39 @@ def test_scalars_equal_the_records(run):
         assert dmean[f] == pytest.approx(float(np.dot(w, rec.distances)))
 
 
-def test_tensors_equal_the_records(run):
-    """Template, observed descriptor and difference, in log space."""
+def test_heatmaps_equal_the_records(run):
+    """Template, observed descriptor and difference, in log space, on their fixed colour scales."""
     from covviz.spd import logm
+    from covviz.viz.why import heatmap_image
 
     t = run["temporal"]
     p = P.TrackerPaths("manifold")
+    logged = last(t, f"{p.heatmap}/image", "Image:buffer")
+    assert set(logged) == set(range(1, N_FRAMES + 1))
+    for i in (0, 5):
+        rec = run["col"].records[i][0]
+        expected = heatmap_image(rec.estimate_template, logm(rec.estimate_descriptor))
+        assert expected.shape == (9, 3 * 9 + 2 * 2, 3)
+        np.testing.assert_array_equal(np.asarray(logged[i + 1], dtype=np.uint8).ravel(), expected.ravel())
+    # The colour scales are fixed: a value maps to the same colour on every frame.
+    from covviz.viz.why import LOG_RANGE
 
-    for f in (0, 5):
-        rec = run["col"].records[f][0]
-        data = last(t, p.tensors, "Tensor:data")[f][0]
-        assert list(data["shape"]) == [3, 9, 9]
-        assert list(data["names"]) == ["matrix", "feature i", "feature j"]
-        template, observed, difference = np.asarray(data["buffer"], dtype=np.float64).reshape(3, 9, 9)
-        tol = {"rtol": 1e-5, "atol": 1e-6}
-        np.testing.assert_allclose(template, rec.estimate_template, **tol)
-        np.testing.assert_allclose(observed, logm(rec.estimate_descriptor), **tol)
-        np.testing.assert_allclose(difference, logm(rec.estimate_descriptor) - rec.estimate_template, **tol)
+    lo = heatmap_image(np.full((9, 9), LOG_RANGE[0]), np.full((9, 9), LOG_RANGE[0]))
+    hi = heatmap_image(np.full((9, 9), LOG_RANGE[1]), np.full((9, 9), LOG_RANGE[1]))
+    assert not np.array_equal(lo[:, :9], hi[:, :9])
+    np.testing.assert_array_equal(lo[:, :9], lo[:, 11:20])  # template and observed share one scale
+    np.testing.assert_array_equal(lo[:, 22:], hi[:, 22:])  # no difference: the same neutral colour
 
 
 def test_costly_diagnostics_only_on_their_frames(run):
     t = run["temporal"]
     p = P.TrackerPaths("manifold")
-    mds_frames = {f for f in range(N_FRAMES) if f % MDS_EVERY == 0}
+    mds_frames = {i + 1 for i in range(N_FRAMES) if i % MDS_EVERY == 0}  # frame numbers
     assert set(t[p.cloud_kind("target")]["Points2D:positions"]) == mds_frames
-    assert set(t[p.cloud_kind("top")]["Points2D:positions"]) == mds_frames - {0}
+    assert set(t[p.cloud_kind("top")]["Points2D:positions"]) == mds_frames - {1}
     assert set(t[p.likelihood]["Image:buffer"]) == mds_frames
     # ... and cleared on the next frame, so a stale map never sits on a later frame.
-    assert {f + 1 for f in mds_frames if f + 1 < N_FRAMES} <= set(t[p.likelihood]["Clear:is_recursive"])
+    assert {f + 1 for f in mds_frames if f < N_FRAMES} <= set(t[p.likelihood]["Clear:is_recursive"])
     top = last(t, p.cloud_kind("top"), "Points2D:positions")
     assert all(len(v) == LoggerConfig().top_k for v in top.values())
 
@@ -264,7 +297,7 @@ def test_bad_arrays_are_validated_not_logged(tmp_path):
     record_run(path, [_Broken()], n_frames=4)
     t, _ = read_recording(path)
     p = P.TrackerPaths("broken")
-    assert set(boxes(t, p.box)) == {1, 2, 3}  # the NaN box of frame 0 was not logged
+    assert set(boxes(t, p.box)) == {2, 3, 4}  # the NaN box of frame 1 (index 0) was not logged
     assert p.particles not in t
     lines = texts(t, p.events)
     assert any("box has NaN" in x for x in lines)
@@ -298,8 +331,8 @@ def test_an_exception_inside_the_tracker_leaves_a_valid_recording(tmp_path):
         record_run(path, [_FailsAt(6, config=ManifoldConfig(n_particles=30), rng=0)], n_frames=10)
     assert rrd_verify(path).returncode == 0
     t, s = read_recording(path)
-    assert set(t[P.IMAGE]["EncodedImage:blob"]) == set(range(6))
-    assert set(boxes(t, P.TrackerPaths("manifold").box)) == set(range(6))
+    assert set(t[P.IMAGE]["EncodedImage:blob"]) == set(range(1, 7))
+    assert set(boxes(t, P.TrackerPaths("manifold").box)) == set(range(1, 7))
     assert "interrupted" in static_text(s, P.SUMMARY)
     assert any("interrupted" in x for x in texts(t, P.TrackerPaths("manifold").events))
 

@@ -96,8 +96,9 @@ from dataclasses import asdict, dataclass, field
 
 import cv2
 import numpy as np
-from scipy.special import logsumexp
 
+from covviz.features import REMAP_MAX_ROWS, remap_stacked
+from covviz.particles import effective_sample_size, normalize_log_weights
 from covviz.records import FrameRecord
 from covviz.trackers.base import check_init_box, to_gray
 
@@ -113,22 +114,20 @@ __all__ = [
     "diffuse",
     "reconstruction_errors",
     "resample_indices",
+    "sample_templates",
     "sklm",
     "state_corners",
     "state_to_box",
     "template_grid",
     "update_model",
-    "warp_patches",
 ]
 
 #: Side of the square template, pixels (the reference's ``tmplsize``).
 TEMPLATE_SIZE = 32
 #: Components with ``D**2 < SKLM_CUTOFF * sum(D**2)`` are dropped by :func:`sklm` (the reference's 1e-6).
 SKLM_CUTOFF = 1e-6
-#: Template sampling conventions, see :func:`warp_patches`.
+#: Template sampling conventions, see :func:`sample_templates`.
 GRIDS = ("reference", "centred")
-#: OpenCV's remap needs every side of its output below SHRT_MAX.
-_REMAP_MAX_ROWS = 32766
 #: Template corners in template offsets: top-left, top-right, bottom-right, bottom-left (unit half-size).
 _CORNERS = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
 
@@ -166,7 +165,7 @@ class IPCAConfig:
         Side of the square template, pixels. 32.
     grid : {"reference", "centred"}
         Where the template is sampled relative to the state's box (see
-        :func:`warp_patches`). ``"reference"`` (default) reproduces what the
+        :func:`sample_templates`). ``"reference"`` (default) reproduces what the
         authors' MATLAB samples for an OTB box: the modelled region sits
         ``0.5 + 0.5 * scale`` pixels right of and below the box the state
         reports. ``"centred"`` samples exactly the box.
@@ -325,8 +324,8 @@ def box_to_state(boxes, size: int = TEMPLATE_SIZE) -> np.ndarray:
     )
 
 
-def warp_patches(gray: np.ndarray, states, size: int = TEMPLATE_SIZE, grid: str = "reference") -> np.ndarray:
-    """Sample the ``size x size`` template of every state, bilinearly, in one ``cv2.remap`` call.
+def sample_templates(gray: np.ndarray, states, size: int = TEMPLATE_SIZE, grid: str = "reference") -> np.ndarray:
+    """Sample the ``size x size`` template of every state, bilinearly (:func:`covviz.features.remap_stacked`).
 
     Parameters
     ----------
@@ -348,15 +347,15 @@ def warp_patches(gray: np.ndarray, states, size: int = TEMPLATE_SIZE, grid: str 
     """
     g = np.asarray(gray)
     if g.ndim != 2:
-        raise ValueError(f"warp_patches needs a grey (H, W) image; got shape {g.shape}")
+        raise ValueError(f"sample_templates needs a grey (H, W) image; got shape {g.shape}")
     if g.dtype != np.float32:
         g = g.astype(np.float32)
     M = affine_matrices(states)
     n = len(M)
     if n == 0:
         return np.zeros((0, size, size), np.float32)
-    if not 0 < size <= _REMAP_MAX_ROWS:
-        raise ValueError(f"patch size must lie in 1..{_REMAP_MAX_ROWS} (OpenCV's remap limit); got {size}")
+    if not 0 < size <= REMAP_MAX_ROWS:
+        raise ValueError(f"patch size must lie in 1..{REMAP_MAX_ROWS} (OpenCV's remap limit); got {size}")
     if grid == "centred":
         # cv2.remap samples at pixel-centre coordinates: continuous point p -> p - 0.5.
         M[:, :, 2] -= 0.5
@@ -366,23 +365,9 @@ def warp_patches(gray: np.ndarray, states, size: int = TEMPLATE_SIZE, grid: str 
     # (row-major). One (2n, 3) @ (3, size*size) product builds both maps.
     rows = np.concatenate([M[:, 0, :], M[:, 1, :]]).astype(np.float32)
     maps = rows @ _template_points(size, grid)
-    map_x = maps[:n].reshape(n * size, size)
-    map_y = maps[n:].reshape(n * size, size)
-    # One remap for all particles; OpenCV caps each side of dst at SHRT_MAX, so
-    # very large sets (> 1023 particles of 32x32) go in chunks.
-    step = (_REMAP_MAX_ROWS // size) * size
-    out = np.empty((n * size, size), np.float32)
-    for r in range(0, n * size, step):
-        cv2.remap(
-            g,
-            map_x[r : r + step],
-            map_y[r : r + step],
-            cv2.INTER_LINEAR,
-            dst=out[r : r + step],
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=0.0,
-        )
-    return out.reshape(n, size, size)
+    map_x = maps[:n].reshape(n, size, size)
+    map_y = maps[n:].reshape(n, size, size)
+    return remap_stacked(g, map_x, map_y, cv2.BORDER_CONSTANT, 0.0)
 
 
 # --------------------------------------------------------------------------- #
@@ -642,7 +627,7 @@ class IPCATracker:
         b = check_init_box(box, np.shape(frame))
         gray = to_gray(frame)
         state0 = box_to_state(b, cfg.patch_size)
-        template = warp_patches(gray, state0, cfg.patch_size, cfg.grid)[0]
+        template = sample_templates(gray, state0, cfg.patch_size, cfg.grid)[0]
         self._scale0 = float(state0[0, 2])
         self.model = AppearanceModel.from_template(template)
         self._buffer = []
@@ -678,12 +663,11 @@ class IPCATracker:
         states = diffuse(self._states, cfg.affsig, self._rng)
         t1 = time.perf_counter()
         gray = to_gray(frame)
-        patches = warp_patches(gray, states, cfg.patch_size, cfg.grid)
+        patches = sample_templates(gray, states, cfg.patch_size, cfg.grid)
         t2 = time.perf_counter()
         flat = patches.reshape(len(patches), -1)
         err = reconstruction_errors(flat, self.model.mean, self.model.basis)
-        logw = -err / cfg.condenssig
-        logw -= logsumexp(logw)
+        logw = normalize_log_weights(-err / cfg.condenssig)
         best = int(np.argmax(logw))
         t3 = time.perf_counter()
         self._buffer_and_update(patches[best].copy())
@@ -703,7 +687,7 @@ class IPCATracker:
             particle_poses=self._poses(states),
             particle_corners=corners,
             log_weights=logw,
-            ess=float(1.0 / np.sum(np.exp(2.0 * logw))),
+            ess=effective_sample_size(logw),
             resampled=True,
             resample_indices=idx,
             distances=np.sqrt(err),

@@ -38,36 +38,26 @@ import json
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, fields
+from typing import Self
 
-import cv2
 import numpy as np
 
-from covviz.descriptor import covariance, quadrant_covariances
-from covviz.dynamics import KinematicModel, propagate_kinematics, template_walk
-from covviz.features import N_FEATURES, patch_features, pose_corners, pose_to_box, warp_patches
+from covviz.dynamics import POSE, SCALE, VX, VY, KinematicModel, X, Y, propagate_kinematics, template_walk
+from covviz.features import N_FEATURES, pose_corners, pose_to_box
+from covviz.observation import ObservationModel
 from covviz.particles import (
     ParticleSet,
     effective_sample_size,
-    log_likelihood,
     mmse,
     multinomial_resample,
     normalize_log_weights,
     systematic_resample,
 )
 from covviz.records import FrameRecord
-from covviz.spd import expm_taylor, jbld, logdet, logm
-from covviz.trackers.base import check_init_box, to_gray
+from covviz.spd import logm
+from covviz.trackers.base import check_init_box
 
-__all__ = [
-    "ManifoldConfig",
-    "ManifoldTracker",
-    "quadrant_distances",
-    "quadrant_term",
-    "riemann_distance_to_templates",
-]
-
-#: Particles per descriptor batch (the unit of work of the observation threads).
-OBSERVE_CHUNK = 150
+__all__ = ["ManifoldConfig", "ManifoldTracker"]
 
 
 @dataclass(frozen=True)
@@ -118,6 +108,9 @@ class ManifoldConfig:
         docstring). Not in the paper; ``False`` gives the paper's likelihood.
     quadrant_weight : float
         Weight of the quadrant term in ``d²``.
+    jit : bool
+        Observe with the compiled kernels (:mod:`covviz.kernels`) when numba is
+        installed and ``COVVIZ_NO_JIT`` is not set; ``False``: the numpy path.
     """
 
     n_particles: int = 600
@@ -135,6 +128,7 @@ class ManifoldConfig:
     gain_normalize: bool = True
     quadrants: bool = True
     quadrant_weight: float = 1.0
+    jit: bool = True
 
     def __post_init__(self):
         for name in (
@@ -286,68 +280,14 @@ def suggest_config(trial, base: ManifoldConfig | None = None) -> ManifoldConfig:
     return config_from_params(params, base)
 
 
-def riemann_distance_to_templates(L: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``d(expm(L_i), B_i)`` for log-space templates ``L`` and SPD observations ``B``.
-
-    ``expm(L)^(-1/2) = expm(-L/2) =: E`` exactly, so the generalized
-    eigenvalues of the pair are those of ``E B E``: one matrix exponential
-    (:func:`covviz.spd.expm_taylor`, batched products only), two products and
-    ``eigvalsh``. Equal to ``covviz.spd.distance_riemann(B, expm(L))`` to
-    ~1e-12 relative, and cheaper than an ``eigh`` of every template (the
-    distances stage at 600 particles, side by side: 4.4–4.5 vs 4.9–5.1 ms a
-    frame).
-    The Taylor scaling is chosen per batch, so a distance can differ in the
-    last bits with the batch it is computed in; the tracker's batches are
-    fixed (:data:`OBSERVE_CHUNK`), so its boxes do not.
-
-    Parameters
-    ----------
-    L : ndarray, shape (n, d, d)
-    B : ndarray, shape (n, d, d)
-
-    Returns
-    -------
-    ndarray, shape (n,)
-    """
-    E = expm_taylor(-0.5 * np.asarray(L, dtype=np.float64))
-    mu = np.linalg.eigvalsh(E @ B @ E)
-    return np.sqrt(np.sum(np.log(np.maximum(mu, 1e-300)) ** 2, axis=-1))
-
-
-def quadrant_distances(Q: np.ndarray, ref: np.ndarray, ref_logdet: np.ndarray) -> np.ndarray:
-    """``sqrt(8·J)`` of each particle's quadrants against the reference quadrants.
-
-    Parameters
-    ----------
-    Q : ndarray, shape (n, 4, d, d)
-        Quadrant descriptors (:func:`covviz.descriptor.quadrant_covariances`).
-    ref : ndarray, shape (4, d, d)
-    ref_logdet : ndarray, shape (4,)
-        :func:`covviz.spd.logdet` of ``ref``.
-
-    Returns
-    -------
-    ndarray, shape (n, 4)
-        The affine-invariant distance to second order (:func:`covviz.spd.jbld`).
-    """
-    return np.sqrt(8.0 * np.maximum(jbld(ref, Q, logdet_a=ref_logdet), 0.0))
-
-
-def quadrant_term(q: np.ndarray) -> np.ndarray:
-    """Mean of the three smallest squared quadrant distances of each row, ``(n,)``.
-
-    Dropping the largest keeps one occluded (or otherwise changed) quadrant
-    from dominating a particle's score.
-    """
-    q2 = np.asarray(q, dtype=np.float64) ** 2
-    k = q2.shape[-1]
-    if k < 2:
-        return q2.sum(axis=-1)
-    return (q2.sum(axis=-1) - q2.max(axis=-1)) / (k - 1)
-
-
 class ManifoldTracker:
     """Particle filter with per-particle covariance templates (the paper's method).
+
+    A thin shell over the pure pieces: the frozen
+    :class:`~covviz.observation.ObservationModel` (built at :meth:`init`), the
+    :class:`~covviz.particles.ParticleSet` it steps, and a pool of
+    ``config.threads`` threads for the observations, which :meth:`close`
+    (or leaving a ``with`` block) shuts down.
 
     Parameters
     ----------
@@ -361,16 +301,16 @@ class ManifoldTracker:
     ``(n,)`` (the noise mode each particle drew), ``velocity`` ``(2,)`` (of the
     estimate), ``quadrant_distances`` ``(n, 4)`` (None without quadrants) and
     ``likelihood_distances`` ``(n,)``, the distance each particle was weighed
-    by (``record.distances`` is the paper's template distance alone).
-    ``quadrant_reference`` ``(4, 9, 9)`` holds the quadrants observed at init.
+    by (``record.distances`` is the paper's template distance alone). The
+    init record's ``model`` is the observation model.
 
     Examples
     --------
     >>> from covviz.sequences import SyntheticSequence
     >>> seq = SyntheticSequence()
-    >>> tr = ManifoldTracker(rng=0)
-    >>> tr.init(seq.frame(0).image, seq.init_box)
-    >>> box = tr.update(seq.frame(1).image)
+    >>> with ManifoldTracker(rng=0) as tr:
+    ...     tr.init(seq.frame(0).image, seq.init_box)
+    ...     box = tr.update(seq.frame(1).image)
     """
 
     name = "manifold"
@@ -378,148 +318,55 @@ class ManifoldTracker:
     def __init__(self, config: ManifoldConfig | None = None, rng=None):
         self.config = config or ManifoldConfig()
         self.rng = np.random.default_rng(rng)
+        self.model: ObservationModel | None = None
         self.particles: ParticleSet | None = None
+        self.initial_template: np.ndarray | None = None
         self.last_record: FrameRecord | None = None
         self._sigma = self.config.sigma_matrix
         self._index = 0
-        self._pool: ThreadPoolExecutor | None = None
-        self.quadrant_reference: np.ndarray | None = None
-        self._quadrant_logdet: np.ndarray | None = None
+        self._closed = False
+        # Made here, once, by the thread that builds the tracker (no lazy creation to race on).
+        self._pool = (
+            ThreadPoolExecutor(max_workers=self.config.threads, thread_name_prefix="covviz-observe")
+            if self.config.threads > 1
+            else None
+        )
 
     def config_dict(self) -> dict:
         return self.config.as_dict()
 
+    def close(self) -> None:
+        """Shut the observation threads down; the tracker cannot be used after this."""
+        self._closed = True
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
     # ------------------------------------------------------------------ #
-    def _prepare(self, frame: np.ndarray) -> np.ndarray:
-        g = to_gray(frame)
-        if self._step > 1:
-            H, W = g.shape
-            g = cv2.resize(
-                g, (max(1, round(W / self._step)), max(1, round(H / self._step))), interpolation=cv2.INTER_AREA
-            )
-        if self.config.smooth_sigma > 0:
-            g = cv2.GaussianBlur(g, (0, 0), self.config.smooth_sigma)
-        return g
-
-    def _observe_chunk(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
-        cfg = self.config
-        t0 = time.perf_counter()
-        P = warp_patches(gray, poses, self.base_wh, cfg.patch_size, 1, self._step_exact)
-        t1 = time.perf_counter()
-        F = patch_features(P, gain_normalize=cfg.gain_normalize, quadrants=cfg.quadrants)
-        t2 = time.perf_counter()
-        if cfg.quadrants:
-            C, Q = quadrant_covariances(F, cfg.eps)
-        else:
-            C, Q = covariance(F, cfg.eps), None
-        t3 = time.perf_counter()
-        d = q = None
-        if templates is not None:
-            d = riemann_distance_to_templates(templates, C)
-            if Q is not None:
-                q = quadrant_distances(Q, self.quadrant_reference, self._quadrant_logdet)
-        t4 = time.perf_counter()
-        return C, Q, d, q, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)
-
-    def _observe(self, gray: np.ndarray, poses: np.ndarray, templates=None, timings: dict | None = None):
-        """Descriptors at ``poses`` and, given templates, each one's distance to them.
-
-        The particles are cut into fixed chunks of :data:`OBSERVE_CHUNK` that
-        ``config.threads`` threads share. Every chunk is computed the same way
-        whatever the thread count (SIMD kernels round an array's tail
-        differently, so the split itself must not depend on ``threads``), so
-        threads change the speed and never a box. With threads, a stage's
-        timing is its summed time divided by the threads (its share of the wall
-        time).
-
-        Returns
-        -------
-        C : ndarray, shape (n, 9, 9)
-        Q : ndarray, shape (n, 4, 9, 9), or None without ``config.quadrants``
-            The quadrants' descriptors.
-        d : ndarray, shape (n,), or None without templates
-        q : ndarray, shape (n, 4), or None without templates or quadrants
-            :func:`quadrant_distances` to the reference quadrants.
-        """
-        parts = [slice(i, min(i + OBSERVE_CHUNK, len(poses))) for i in range(0, len(poses), OBSERVE_CHUNK)]
-        k = min(self.config.threads, len(parts))
-
-        def work(sl):
-            return self._observe_chunk(gray, poses[sl], None if templates is None else templates[sl])
-
-        if k <= 1:
-            outs = [work(sl) for sl in parts]
-        else:
-            if self._pool is None:
-                self._pool = ThreadPoolExecutor(max_workers=self.config.threads, thread_name_prefix="covviz-observe")
-            outs = list(self._pool.map(work, parts))
-
-        def cat(j):
-            if outs[0][j] is None:
-                return None
-            return outs[0][j] if len(outs) == 1 else np.concatenate([o[j] for o in outs])
-
-        C, Q, d, q = cat(0), cat(1), cat(2), cat(3)
-        if timings is not None:
-            st = [sum(o[4][j] for o in outs) / k for j in range(4)]
-            timings["warp"], timings["features"], timings["covariance"] = st[:3]
-            if templates is not None:
-                timings["distances"] = st[3]
-        return C, Q, d, q
-
-    def observe(self, frame: np.ndarray, poses) -> np.ndarray:
-        """Descriptors the tracker would observe at ``poses`` in ``frame``, ``(n, 9, 9)``.
-
-        The same preprocessing (grey, anti-aliasing, smoothing) and features as
-        in :meth:`update`; for diagnostics such as likelihood maps.
-        """
-        if self.particles is None:
-            raise RuntimeError("call init(frame, box) before observe(frame, poses)")
-        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
-        return self._observe(self._prepare(frame), poses)[0]
-
-    def likelihood_distances(self, frame: np.ndarray, poses, template_log) -> np.ndarray:
-        """The distance that enters the likelihood, at ``poses``, for one template, ``(n,)``.
-
-        ``d(expm(template_log), C*)`` at each pose, combined with the quadrant
-        term when ``config.quadrants`` is on: what :meth:`update` would weigh
-        a particle with this template at that pose by. For diagnostics such as
-        likelihood maps.
-        """
-        if self.particles is None:
-            raise RuntimeError("call init(frame, box) before likelihood_distances(frame, poses, template_log)")
-        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
-        L = np.broadcast_to(np.asarray(template_log, dtype=np.float64), (len(poses), N_FEATURES, N_FEATURES))
-        _, _, d, q = self._observe(self._prepare(frame), poses, np.ascontiguousarray(L))
-        return self._likelihood_distance(d, q)
-
-    def _likelihood_distance(self, d: np.ndarray, q: np.ndarray | None) -> np.ndarray:
-        """``sqrt(d² + quadrant_weight · quadrant_term(q))``, or ``d`` without quadrants."""
-        return d if q is None else np.sqrt(d * d + self.config.quadrant_weight * quadrant_term(q))
+    def _observe(self, gray: np.ndarray, poses: np.ndarray, templates=None, timings=None):
+        return self.model.observe(gray, poses, templates, self._pool, self.config.threads, timings)
 
     def init(self, frame: np.ndarray, box) -> None:
         """Initialise every particle at ``box`` with the template observed there."""
+        if self._closed:
+            raise RuntimeError("this tracker was closed; make a new one")
         cfg = self.config
         t0 = time.perf_counter()
         b = check_init_box(box, np.shape(frame))
+        self.model = model = ObservationModel.from_config(frame, b, cfg)
         x, y, w, h = b
-        self.base_wh = (float(w), float(h))
-        self.base_size = float(np.sqrt(w * h))
-        per_sample = min(w, h) / cfg.patch_size
-        self._step = int(per_sample // 2) if (cfg.antialias and per_sample >= 4) else 1
-        gray = self._prepare(frame)
-        # Exact x and y factors of the resize (the downsampled size is rounded).
-        H, W = np.shape(frame)[:2]
-        self._step_exact = (W / gray.shape[1], H / gray.shape[0]) if self._step > 1 else 1.0
         pose = np.array([[x + w / 2, y + h / 2, 1.0, 0.0]])
-        C0, Q0 = self._observe(gray, pose)[:2]
+        C0 = self._observe(model.prepare(frame), pose).descriptors
         L0 = logm(C0)[0]
-        if Q0 is not None:
-            self.quadrant_reference = Q0[0]
-            self._quadrant_logdet = logdet(Q0[0])
         n = cfg.n_particles
         states = np.zeros((n, 6))
-        states[:, 0], states[:, 1], states[:, 4] = pose[0, 0], pose[0, 1], 1.0
+        states[:, X], states[:, Y], states[:, SCALE] = pose[0, 0], pose[0, 1], 1.0
         self.initial_template = L0
         self.particles = ParticleSet(states, np.broadcast_to(L0, (n, *L0.shape)).copy(), np.full(n, -np.log(n)))
         self._index = 0
@@ -528,47 +375,51 @@ class ManifoldTracker:
             box=b.copy(),
             tracker=self.name,
             pose=pose[0].copy(),
-            corners=pose_corners(pose, self.base_wh)[0],
+            corners=pose_corners(pose, model.base_wh)[0],
             estimate_template=L0,
             estimate_descriptor=C0[0],
             timings={"total": time.perf_counter() - t0},
+            model=model,
         )
 
     def update(self, frame: np.ndarray) -> np.ndarray:
         """Track into ``frame``; return the estimated box ``x, y, w, h``."""
+        if self._closed:
+            raise RuntimeError("this tracker was closed; make a new one")
         if self.particles is None:
             raise RuntimeError("call init(frame, box) before update(frame)")
-        cfg = self.config
+        cfg, model = self.config, self.model
         tm: dict[str, float] = {}
         t_start = time.perf_counter()
         ps = self.particles
         self._index += 1
 
         # 1. propagate kinematics and templates
-        states, modes = propagate_kinematics(ps.states, cfg.kinematics, self.base_size, self.rng)
+        states, modes = propagate_kinematics(ps.states, cfg.kinematics, model.base_size, self.rng)
         templates = template_walk(ps.templates, self._sigma, self.rng)
-        t = time.perf_counter()
-        tm["propagate"] = t - t_start
+        t1 = time.perf_counter()
+        tm["propagate"] = t1 - t_start
 
-        # 2. observe descriptors at every particle's pose
-        gray = self._prepare(frame)
-        poses = states[:, [0, 1, 4, 5]]
-        obs, _, d, q = self._observe(gray, poses, templates, tm)
+        # 2. observe descriptors, and each template's distance, at every particle's pose
+        gray = model.prepare(frame)
+        poses = states[:, POSE]
+        ob = self._observe(gray, poses, templates, tm)
 
         # 3. weigh
         t2 = time.perf_counter()
-        d_eff = self._likelihood_distance(d, q)
-        lw = normalize_log_weights(ps.log_weights + log_likelihood(d_eff, cfg.likelihood_sigma))
+        lw = normalize_log_weights(ps.log_weights + model.log_likelihood(ob.likelihood_distances))
         ess = effective_sample_size(lw)
+        t3 = time.perf_counter()
+        tm["weights"] = t3 - t2
 
         # 4. estimate (MMSE of the pose; weighted log-Euclidean mean of the templates)
         est_state = mmse(states, lw)
-        est_pose = est_state[[0, 1, 4, 5]]
+        est_pose = est_state[POSE]
         est_template = mmse(templates, lw)
-        est_desc = self._observe(gray, est_pose[None])[0][0]
-        box = pose_to_box(est_pose[None], self.base_wh)[0]
-        t3 = time.perf_counter()
-        tm["weights"] = t3 - t2
+        est_desc = self._observe(gray, est_pose[None]).descriptors[0]
+        box = pose_to_box(est_pose[None], model.base_wh)[0]
+        t4 = time.perf_counter()
+        tm["estimate"] = t4 - t3
 
         # 5. resample
         resampled = ess < cfg.resample_threshold * cfg.n_particles
@@ -579,33 +430,33 @@ class ManifoldTracker:
             idx = res(lw, self.rng)
             new = new.take(idx)
         self.particles = new
-        t4 = time.perf_counter()
-        tm["resample"] = t4 - t3
-        tm["total"] = t4 - t_start
+        t5 = time.perf_counter()
+        tm["resample"] = t5 - t4
+        tm["total"] = t5 - t_start
 
         self.last_record = FrameRecord(
             index=self._index,
             box=box,
             tracker=self.name,
             pose=est_pose,
-            corners=pose_corners(est_pose[None], self.base_wh)[0],
+            corners=pose_corners(est_pose[None], model.base_wh)[0],
             particle_poses=poses,
-            particle_corners=pose_corners(poses, self.base_wh),
+            particle_corners=pose_corners(poses, model.base_wh),
             log_weights=lw,
             ess=ess,
             resampled=bool(resampled),
             resample_indices=idx,
             templates=templates,
-            descriptors=obs,
-            distances=d,
+            descriptors=ob.descriptors,
+            distances=ob.distances,
             estimate_template=est_template,
             estimate_descriptor=est_desc,
             timings=tm,
             extras={
                 "modes": modes,
-                "velocity": est_state[2:4],
-                "quadrant_distances": q,
-                "likelihood_distances": d_eff,
+                "velocity": est_state[[VX, VY]],
+                "quadrant_distances": ob.quadrant_distances,
+                "likelihood_distances": ob.likelihood_distances,
             },
         )
         return box

@@ -22,69 +22,73 @@ def viewer_safe(text: str) -> str:
 DESCRIPTION = """\
 # covviz: why the tracker holds on, or drifts
 
-Scrub the **frame** timeline (bottom bar; `time` is seconds when the sequence has a frame rate).
-Each tracker lives under `trackers/<name>/`; the frame and the ground truth under `video/`.
+Start at **Events** (right): every loss of track has a **diagnosis** - its cause, the numbers
+behind it, and the frames to look at. Scrub the **frame** timeline (bottom bar) to a frame
+number; frames are numbered from 1 (`img/0001.jpg`), as in the events. Each tracker lives under
+`trackers/<name>/`; the frame and the ground truth under `video/`.
 
-## Frame · particles · estimate · ground truth
+## Events and diagnoses
+Losses (IoU < 0.1), the frame each **drift began**, recoveries and resampling storms come from
+the ground truth and the weights. Each loss is read against the target's look before the drift
+and named from a fixed vocabulary, the first rule that holds: **fast motion** (the truth jumped
+out of the particles' reach), **scale** (the centre held, the size went wrong), **illumination**
+(part of the target became much darker or brighter), **distractor** (the target still looks as
+before, and the tracker follows a look-alike the likelihood scores as well), **occlusion** (some
+quadrants changed while another held, or something static stands in front), **appearance** (the
+whole target changed faster than the templates follow), **impoverishment** (the weights sat on a
+handful of particles), else **unknown**. Without ground truth, **suspects** (weights
+collapsing, the best distance leaving its running range, a second mode of the weights, the scale
+running away) warn from the filter's own numbers. Thresholds: `config`, `diagnosis`.
+
+## Frame · top particles · estimate · ground truth
 * **red box**: ground truth. **Coloured box** (yellow for `manifold`): the estimate as scored;
   the thin outline of the same colour is the estimated rotated region.
-* **green outlines**: every particle's region, brighter and more opaque the higher its weight
-  (weight divided by the frame's largest weight). The **bold green** ones are the top 10.
-  **Dots**: particle centres, sized by weight. Hover a bold outline to read its weight and distance
-  (for `manifold`, also the distance it was weighed by, quadrant term included, and its four
-  quadrant distances).
-* **Likelihood map** (every *k*-th frame, see `config`): the log-likelihood of the estimate's
-  template at positions around the estimate (±1 region size; with the tracker's quadrant term
-  when it has one, exactly as the particles are weighed), from 20 nats below its best
-  position (transparent) to the best (bright yellow); the white dot is the best match.
-  *A bright blob away from the target means the background matches the template as well as or
-  better than the target does: the particles will go there.*
-* **Blue outlines** (same frames as the template cloud): the background regions sampled for it.
+* **bold green outlines**: the top 10 particles (hover one: its weight, its distance, the
+  distance it was weighed by and its four quadrant distances). **Dots**: particle centres, sized
+  by weight. All particles' outlines, coloured by weight, are one toggle away (the eye of
+  `particles` in this view).
+* **Likelihood map** (every *k*-th frame and on every frame around an event): the
+  log-likelihood of the estimate's template at positions around the estimate, exactly as the
+  particles are weighed, from 20 nats below its best (transparent) to the best (bright); the
+  white dot is the best match. *A bright blob away from the target: the particles will go there.*
+* **Blue outlines**: the background regions of the template cloud's picture.
 
-## Template cloud (MDS): with the background, and alone
-A 2-D map of Riemannian distances between covariance matrices (MDS, aligned to the previous
-picture so it does not flip), every *k*-th frame: **green** generated templates (the
-particles' templates; **bright green** the top 10 by weight), **red** the descriptor observed at
-the ground truth (the target), **blue** background regions around the target, **white** the
-initial template, **yellow** the estimate's template. Distances in the picture are distances on
-the manifold. The first view includes the background (classical MDS; the template cloud is
-often a small knot there: the target is far from the background, which is what makes tracking
-work); the second leaves the background out and fits all distances (SMACOF), so the cloud's
-own spread shows.
-*Healthy*: the green cloud around the red target, blue far away. *Drifting*: the cloud moves
-towards the blue points, or the red target leaves the cloud (the appearance changed faster than
-the template random walk can follow).
+## Plots (no legend box: hover a curve for its name; each tracker has its colour)
+* **IoU** with the truth (bold) and the **particles' best IoU** (thin: did any particle reach the
+  truth?); markers **x** drift began, **▼** lost, **▲** recovered, **\\*** suspect.
+* **Why off track**: the likelihood distance `d_eff` at the **truth** (bright) and at the
+  **estimate** (dim), for the best template of the cloud (bold) and the estimate's template
+  (thin). Off-track frames are labelled: **x model** failure (the truth scores no better than
+  the estimate: the likelihood prefers the wrong place), **▲ search** failure (the truth would
+  score better, but no particle reached it), **diamond estimate** failure (particles reached the
+  better-scoring truth, the estimate is elsewhere).
+* **Weights**: ESS/N, max weight, survivors of resampling (dots: resampled).
+* **Cloud**: min and weighted-mean `d(C, C*)`, the template **spread**, the target's **gap** to
+  the cloud relative to its usual gap on track (1 = healthy; 2 and more: the target has left the
+  templates' reach), the **background margin** (>0: the target is nearer the cloud than any
+  background region) and the **stress-1** of the cloud's MDS picture (0.1 fair, 0.2 poor: do not
+  read a poor picture as a map).
 
-## IoU and centre error
-Against the ground truth, all trackers on one plot. Markers: **×** where a drift began
-(the first frame of the fall of IoU that ended in a loss), **▼** loss of track (IoU < 0.1),
-**▲** recovery (IoU ≥ 0.3 for 3 frames).
+## Zoom · likelihood slices · template cloud (middle)
+* **Zoom**: the 32x32 patches the model samples at the estimate, the truth and the initial box.
+* **Slices**: `d_eff` of the estimate's template along scale (x0.6 .. x1.67) and rotation
+  (-20 .. +20 degrees) about the estimate's centre (yellow) and the truth's (red); lower is
+  preferred, the vertical line is the pose's own. *Flat across scale: the likelihood cannot tell
+  the size.*
+* **Template cloud** (MDS of Riemannian distances): green generated templates (bright: top 10),
+  red the target, white the initial template, yellow the estimate's template; with the blue
+  background in the second tab.
 
-## Weights
-**ESS/N** (effective sample size over particle count; the tracker resamples below 0.5,
-white dots), **max weight**, **survivors/N** (distinct ancestors kept by a resampling).
-A *resampling storm* (ESS/N < 0.05) means the likelihood is so peaked that a handful of
-particles carry all the weight: the filter is close to losing its diversity.
-
-## Distance d(C, C*) · template spread
-**min d** and the **weighted mean d** between each particle's template and what it observes,
-and the **template spread** (mean geodesic distance of the templates to their Karcher mean).
-Rising distances with a steady spread: the target's appearance changes faster than the
-templates follow. A spread that grows without bound: the random walk is too loose.
-
-## Tensors, timings, events
-The estimate's 9×9 **template** in log space (`logm(C)`, where the template random walk
-moves), the **observed** descriptor at the estimate (`logm(C*)`) and their **difference**
-`logm(C*) − logm(C)`: which feature (co)variances changed. Rows and columns: x, y, I, |Ix|,
-|Iy|, |grad I|, atan(|Ix|/|Iy|), |Ixx|, |Iyy|.
-**Timings**: milliseconds per stage of the tracker's update, and the logger's own time.
-**Events**: storms, loss, drift onset and recovery, with frame numbers (click to jump).
+## Heatmaps · timings (right, below)
+The estimate's template `logm(C)`, the descriptor observed at the estimate `logm(C*)` and their
+difference, on fixed colour scales (the bars below them); rows and columns are the 9 features.
+**Timings**: milliseconds per stage of the update, and the recorder's own time.
 
 ## Reading a drift
-1. Find the **×** on the IoU plot (or the `drift began` line in Events) and go to that frame.
-2. Look at the likelihood map: is there a second bright blob? Where is the white dot?
-3. Look at the clouds: is the red target still inside the green cloud? Are blue points closer?
-4. Step forward: watch the bright particles leave the red box, and ESS/N collapse.
+1. In **Events**, read the diagnosis of the loss; click its `drift began` line to go there.
+2. **Why off track**: model failure (fix the likelihood) or search failure (fix the dynamics)?
+3. **Zoom** and **slices**: does the truth still look like the initial box? Is the curve flat?
+4. Step forward: watch the top particles leave the red box, and ESS/N collapse.
 """
 
 MDS_DESCRIPTION = """\
@@ -97,6 +101,10 @@ work; blue points inside the red cloud are distractors.
 
 **Random walk of the templates** (right): at a few frames (labels), the initial template
 (**white**), the particles' generated templates (**green**, brighter = later frame, larger =
-among the top 10 by weight) and the target descriptor at that frame (**red**), in one common MDS
-map: the templates follow the target's appearance across the manifold by a random walk.
+among the top 10 by weight), the target descriptor at that frame (**red**) and background regions
+around it (**blue**), in one common MDS map: the templates follow the target's appearance across
+the manifold by a random walk, away from the background.
+
+Both figures use one observation model: the manifold tracker's, built on frame 1 (its settings
+are named below and in the PNGs).
 """

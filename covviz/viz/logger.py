@@ -23,6 +23,7 @@ import json
 import logging
 import re
 import time
+from collections import deque
 from collections.abc import Sequence as Seq
 from dataclasses import asdict, dataclass, field
 
@@ -30,24 +31,23 @@ import numpy as np
 import rerun as rr
 
 from covviz import __version__
-from covviz.embedding import AlignedMDS, distance_matrix
+from covviz.diagnosis import Diagnoser, DiagnosisConfig
+from covviz.embedding import AlignedMDS, distance_matrix, stress1
 from covviz.features import pose_corners
-from covviz.metrics import center_error, evaluate, iou
-from covviz.records import FrameRecord
+from covviz.metrics import center_error, evaluate, iou, nothing_to_score
+from covviz.observation import ObservationModel, box_to_pose
+from covviz.records import FrameRecord, frame_number
 from covviz.spd import logm
 from covviz.threads import limit_threads
 from covviz.viz import paths as P
+from covviz.viz import why
 from covviz.viz.blueprint import build_blueprint
 from covviz.viz.checks import checked, closed_strips, jpeg_bytes
 from covviz.viz.description import DESCRIPTION, viewer_safe
 from covviz.viz.diagnostics import (
-    EVENT_DEFAULTS,
-    EventConfig,
-    EventDetector,
-    ObservationModel,
     background_poses,
-    box_to_pose,
     likelihood_map,
+    likelihood_slices,
     template_cloud,
     template_spread,
     top_k,
@@ -65,7 +65,7 @@ from covviz.viz.palette import (
     weight_levels,
     weight_lut,
 )
-from covviz.viz.sinks import FLUSH_TIMEOUT
+from covviz.viz.sinks import FLUSH_TIMEOUT, close_stream
 
 __all__ = ["LoggerConfig", "RerunLogger"]
 
@@ -113,8 +113,14 @@ class LoggerConfig:
         Particle corners and centres are rounded to this many pixels.
     seed : int
         Seed of the logger's own randomness (the sample of templates in the MDS).
-    events : EventConfig
-        Thresholds of the event detector.
+    diagnosis : DiagnosisConfig
+        Thresholds of the event detector and of the drift diagnosis.
+    dense_before : int
+        Frames kept in memory so that, when a loss is diagnosed, the likelihood
+        map, the slices and the template cloud are computed back to the drift
+        onset (up to this many frames back) ...
+    dense_after : int
+        ... and for this many frames after the loss and every suspect.
     """
 
     mds_every: int = 10
@@ -130,7 +136,9 @@ class LoggerConfig:
     jpeg_quality: int = 60
     particle_precision: float = 0.5
     seed: int = 0
-    events: EventConfig = field(default_factory=lambda: EVENT_DEFAULTS)
+    diagnosis: DiagnosisConfig = field(default_factory=DiagnosisConfig)
+    dense_before: int = 16
+    dense_after: int = 3
 
     def __post_init__(self):
         for name in ("mds_every", "spread_every", "spread_templates", "top_k", "n_background"):
@@ -154,11 +162,6 @@ class LoggerConfig:
         return self.mds_every if self.likelihood_every is None else self.likelihood_every
 
 
-#: Dimension names of the estimate's tensor; slices of the first are TENSOR_SLICES.
-TENSOR_DIMS = ("matrix", "feature i", "feature j")
-TENSOR_SLICES = ("template", "observed", "difference")
-
-
 def _has_templates(tracker) -> bool:
     """Whether a tracker carries covariance templates (the manifold tracker and its variants)."""
     return hasattr(getattr(tracker, "config", None), "template_sigma")
@@ -179,15 +182,22 @@ class _TrackerState:
         self.paths = P.TrackerPaths(name)
         self.tracker = tracker
         self.color = color
-        self.model: ObservationModel | None = None
-        self.model_checked = False
-        self.sigma = float(getattr(getattr(tracker, "config", None), "likelihood_sigma", 0.3) or 0.3)
+        self.model: ObservationModel | None = None  # from the tracker's init record
         self.mds = AlignedMDS(cfg.mds_method)
         # SMACOF for the cloud alone: classical MDS would flatten it (see covviz.embedding.embed).
         self.mds_zoom = AlignedMDS("smacof", max_iter=30)
         self.spread_mean: np.ndarray | None = None
-        self.events = EventDetector(cfg.events)
+        self.index = index
         self.initial_template: np.ndarray | None = None
+        self.initial_patch: np.ndarray | None = None
+        self.dense_until = -1  # frame index up to which the costly views run on every frame
+        self.losses: list[int] = []
+        self.drifts: list[int] = []
+        self.n_storms = 0
+        self.diagnoses: list = []
+        self.drawn: deque = deque(maxlen=64)  # recent frames whose costly views are logged
+        self.healthy_gap: deque = deque(maxlen=30)  # the target's gap to the cloud on frames on track
+        self.last_iou: float | None = None
         self.rng = np.random.default_rng([cfg.seed, index])
         self.had_particles = False
         self.lut = LUT
@@ -213,6 +223,11 @@ class RerunLogger:
     close_on_end : bool
         Flush and disconnect the stream in ``on_end`` (also after an
         interruption), which finalises an ``.rrd`` file.
+    diagnoser : covviz.diagnosis.Diagnoser, optional
+        The drift diagnosis the logger drives (frame by frame, on its own
+        thread) and draws; pass one to read its results after the run (as
+        ``covviz track`` does for the results JSON and its summary). Default:
+        one of its own, with ``config.diagnosis``.
 
     Examples
     --------
@@ -228,9 +243,12 @@ class RerunLogger:
         config: LoggerConfig | None = None,
         run_info: dict | None = None,
         close_on_end: bool = True,
+        diagnoser: Diagnoser | None = None,
     ):
         self.stream = stream
         self.config = config or LoggerConfig()
+        self.diagnoser = diagnoser or Diagnoser(self.config.diagnosis)
+        self._recent: deque = deque(maxlen=max(1, self.config.dense_before))
         self.run_info = dict(run_info or {})
         self.close_on_end = close_on_end
         self._states: list[_TrackerState] = []
@@ -265,6 +283,7 @@ class RerunLogger:
                     key: tuple(int(0.4 * a + 0.6 * b) for a, b in zip(col[:3], s.color))
                     for key, col in SERIES_COLORS.items()
                 }
+        self.diagnoser.on_start(sequence, trackers)
         # The blueprint goes out with the first frame, when the image size is known.
         self._blueprint_args = (names, with_cloud, with_particles)
         rec.send_recording_name(
@@ -332,17 +351,20 @@ class RerunLogger:
                 )
             for path, (col, label) in lines.items():
                 rec.log(path, rr.SeriesLines(colors=[col], names=[label], widths=[1.5]), static=True)
-            for kind, marker in (("drift", "Cross"), ("lost", "Down"), ("recovered", "Up")):
+            # Event markers in the tracker's colour, one shape per kind: several trackers on one plot
+            # stay apart.
+            for kind, marker in (("drift", "Cross"), ("lost", "Down"), ("recovered", "Up"), ("suspect", "Asterisk")):
                 rec.log(
                     p.marker(kind),
                     rr.SeriesPoints(
-                        colors=[SERIES_COLORS[kind]],
+                        colors=[c],
                         names=[f"{s.name} {kind}"],
                         markers=[marker],
-                        marker_sizes=[6.0],
+                        marker_sizes=[6.0 if kind != "suspect" else 4.0],
                     ),
                     static=True,
                 )
+            why.log_static(rec, p, s.name, c, s.name in with_cloud)
             rec.log(
                 p.box,
                 rr.Boxes2D.from_fields(
@@ -383,9 +405,7 @@ class RerunLogger:
                 h, w = np.shape(frame.image)[:2]
                 rec.send_blueprint(build_blueprint(*self._blueprint_args, image_size=(w, h)))
             self._blueprint_args = None
-        rec.set_time(P.FRAME_TIMELINE, sequence=i)
-        if frame.time is not None:
-            rec.set_time(P.TIME_TIMELINE, duration=float(frame.time))
+        self._set_time(frame)
         rec.log(
             P.IMAGE,
             rr.EncodedImage(
@@ -400,9 +420,17 @@ class RerunLogger:
             rec.log(P.GROUND_TRUTH, rr.Boxes2D(mins=[gt[:2]], sizes=[gt[2:]]))
         else:
             rec.log(P.GROUND_TRUTH, rr.Clear(recursive=False))
+        self.diagnoser.on_frame(frame, records)
+        self._recent.append((frame, list(records)))
         prepared_cache: dict[int, object] = {}
-        for s, record in zip(self._states, records):
-            self._log_tracker(s, frame, record, gt, prepared_cache)
+        for s, record, found in zip(self._states, records, self.diagnoser.new):
+            self._log_tracker(s, frame, record, gt, prepared_cache, found)
+
+    def _set_time(self, frame) -> None:
+        """Put the stream at ``frame`` on both timelines (``frame``: 1-based numbers; ``time``: seconds)."""
+        self.stream.set_time(P.FRAME_TIMELINE, sequence=frame_number(frame.index))
+        if frame.time is not None:
+            self.stream.set_time(P.TIME_TIMELINE, duration=float(frame.time))
 
     def _warn(self, s: _TrackerState, problems: list[str]) -> None:
         for msg in problems:
@@ -411,23 +439,46 @@ class RerunLogger:
                 log.warning("%s: %s; not logged (further occurrences silent)", s.name, msg)
                 self.stream.log(s.paths.events, rr.TextLog(viewer_safe(f"not logged: {msg}"), level="WARN"))
 
-    def _log_tracker(self, s: _TrackerState, frame, record: FrameRecord, gt, prepared_cache) -> None:
-        rec, cfg, p = self.stream, self.config, s.paths
+    def _log_tracker(self, s: _TrackerState, frame, record: FrameRecord, gt, prepared_cache, found: dict) -> None:
+        """Everything one tracker's record says about one frame, view by view; ``found``: the diagnoser's news."""
+        rec = self.stream
         i = int(frame.index)
         problems: list[str] = []
         for path in s.clear_next:
             rec.log(path, rr.Clear(recursive=False))
         s.clear_next = []
+        if isinstance(record.model, ObservationModel):  # the init record: what the tracker sees, frozen
+            s.model = record.model
+        box = self._log_estimate(s, record, problems)
+        self._log_particles(s, record, problems)
+        s.last_iou = self._log_quality(s, box, gt)
+        self._log_spread(s, record, i, problems)
+        est_t = self._log_heatmap(s, record, i, problems)
+        self._log_timings(s, record)
+        ev = found.get("evidence")
+        if ev is not None:
+            why.log_evidence(self.stream, s.paths, ev, s.model is not None)
+        self._log_zoom(s, frame, record, gt, prepared_cache)
+        dense = i <= s.dense_until
+        self._log_diagnostics(s, frame, record, box, gt, est_t, prepared_cache, problems, dense)
+        self._log_events(s, frame, found)
+        if problems:
+            self._warn(s, problems)
 
-        # --- estimate -------------------------------------------------
+    def _log_estimate(self, s: _TrackerState, record: FrameRecord, problems: list) -> np.ndarray | None:
+        """The estimated box and its (rotated) region; returns the box."""
+        rec, p = self.stream, s.paths
         box = checked(record.box, (4,), "box", problems)
         if box is not None:
             rec.log(p.box, rr.Boxes2D(mins=[box[:2]], sizes=[box[2:]]))
         corners = checked(record.corners, (4, 2), "corners", problems)
         if corners is not None:
             rec.log(p.region, rr.LineStrips2D(closed_strips(corners[None]).astype(np.float32)))
+        return box
 
-        # --- particles ------------------------------------------------
+    def _log_particles(self, s: _TrackerState, record: FrameRecord, problems: list) -> None:
+        """Particles coloured by weight, the top ones with their distances, and the weight series."""
+        rec, cfg, p = self.stream, self.config, s.paths
         pc = checked(record.particle_corners, (-1, 4, 2), "particle_corners", problems)
         lw = checked(record.log_weights, (-1,), "log_weights", problems)
         n = record.n_particles
@@ -497,14 +548,19 @@ class RerunLogger:
             for path in (p.particles, p.top, p.centres):
                 rec.log(path, rr.Clear(recursive=False))
 
-        # --- quality against ground truth ---------------------------------
+    def _log_quality(self, s: _TrackerState, box, gt) -> float | None:
+        """IoU and centre error against the ground truth; returns the IoU (None without ground truth)."""
+        rec, p = self.stream, s.paths
         o = None
         if gt is not None and box is not None:
             o = float(iou(box[None], gt[None])[0])
             rec.log(p.iou, rr.Scalars(o))
             rec.log(p.center_error, rr.Scalars(float(center_error(box[None], gt[None])[0])))
+        return o
 
-        # --- template cloud spread ---------------------------------------
+    def _log_spread(self, s: _TrackerState, record: FrameRecord, i: int, problems: list) -> None:
+        """The template cloud's spread (mean distance to its Karcher mean)."""
+        rec, cfg, p = self.stream, self.config, s.paths
         templates = checked(record.templates, (-1, -1, -1), "templates", problems)
         if templates is not None and len(templates) and cfg.spread_every and i % cfg.spread_every == 0:
             try:
@@ -516,25 +572,49 @@ class RerunLogger:
                 problems.append(f"template spread failed ({exc})")
                 s.spread_mean = None
 
-        # --- tensors ---------------------------------------------------------
+    def _log_heatmap(self, s: _TrackerState, record: FrameRecord, i: int, problems: list) -> np.ndarray | None:
+        """The estimate's template, its observation and their difference as labelled heatmaps; returns the template.
+
+        In log space (where the template lives and the random walk steps: entries of order 1,
+        readable on one fixed colour scale, and difference = observed - template exactly).
+        """
         est_t = checked(record.estimate_template, (-1, -1), "estimate_template", problems)
         est_d = checked(record.estimate_descriptor, (-1, -1), "estimate_descriptor", problems)
         if i == 0 and est_t is not None:
             s.initial_template = est_t.copy()
-        # One (3, d, d) tensor: template, observed, difference, in log space (where the template
-        # lives and the random walk steps: entries of order 1, readable on one colour scale, and
-        # difference = observed - template exactly). One tensor instead of three saves 1 ms a
-        # frame of conversion.
-        if est_t is not None and est_d is not None and est_t.shape == est_d.shape:
+        if est_t is not None and est_d is not None and est_t.shape == est_d.shape == (9, 9):
             try:
                 obs_log = logm(est_d)
             except ValueError as exc:
                 problems.append(f"observed descriptor is not SPD ({exc})")
             else:
-                stack = np.stack([est_t, obs_log, obs_log - est_t]).astype(np.float32)
-                rec.log(p.tensors, rr.Tensor(stack, dim_names=list(TENSOR_DIMS)))
+                why.log_heatmap(self.stream, s.paths, est_t, obs_log)
+        return est_t
 
-        # --- timings -----------------------------------------------------
+    def _log_zoom(self, s: _TrackerState, frame, record: FrameRecord, gt, prepared_cache) -> None:
+        """The warped patches at the estimate, the truth and the initial box, as the tracker samples them."""
+        model = s.model
+        if model is None or record.pose is None:
+            return
+        prepared = self._prepared(s, frame, prepared_cache)
+        poses = [np.asarray(record.pose, dtype=np.float64)]
+        if gt is not None:
+            poses.append(box_to_pose(gt, model.base_wh))
+        patches = list(model.patches(prepared, np.stack(poses)))
+        if int(frame.index) == 0:
+            s.initial_patch = patches[0]
+        truth = patches[1] if gt is not None else None
+        why.log_zoom(self.stream, s.paths, why.zoom_image([patches[0], truth, s.initial_patch]))
+
+    def _prepared(self, s: _TrackerState, frame, prepared_cache):
+        key = id(s.model)
+        if key not in prepared_cache:
+            prepared_cache[key] = s.model.prepare(frame.image)
+        return prepared_cache[key]
+
+    def _log_timings(self, s: _TrackerState, record: FrameRecord) -> None:
+        """Per-stage times of the update, milliseconds."""
+        rec, p = self.stream, s.paths
         for stage, sec in record.timings.items():
             if not np.isfinite(sec):
                 continue
@@ -548,54 +628,125 @@ class RerunLogger:
                 )
             rec.log(path, rr.Scalars(float(sec) * 1e3))
 
-        # --- costly diagnostics (only on their frames) ----------------------------
-        want_mds = cfg.mds_every and i % cfg.mds_every == 0 and est_t is not None
-        want_lik = cfg.likelihood_period and i % cfg.likelihood_period == 0 and est_t is not None
-        if want_mds or want_lik:
-            model = self._model(s)
-            if model is not None:
-                key = id(s.tracker)
-                if key not in prepared_cache:
-                    prepared_cache[key] = model.prepare(frame.image)
-                prepared = prepared_cache[key]
-                pose = checked(record.pose, (4,), "pose", problems)
-                if pose is None and box is not None:
-                    pose = box_to_pose(box, model.base_wh)
-                if pose is not None:
-                    try:
-                        if want_lik:
-                            self._log_likelihood(s, model, prepared, pose, est_t)
-                        if want_mds:
-                            self._log_cloud(s, model, prepared, frame, record, pose, gt)
-                    except (ValueError, np.linalg.LinAlgError) as exc:
-                        problems.append(f"diagnostics failed on frame {i} ({exc})")
+    def _log_diagnostics(
+        self, s: _TrackerState, frame, record, box, gt, est_t, prepared_cache, problems, dense: bool = False
+    ) -> None:
+        """The costly views (likelihood map and slices, template cloud), through the model.
 
-        # --- events ------------------------------------------------------
-        ess_frac = float(record.ess) / n if n and np.isfinite(record.ess) else None
-        for ev in s.events.update(i, o, ess_frac):
-            if ev.frame != i:  # a drift is reported on the frame where it began
-                rec.set_time(P.FRAME_TIMELINE, sequence=ev.frame)
-                if frame.time is not None and self._fps:
-                    rec.set_time(P.TIME_TIMELINE, duration=ev.frame / self._fps)
-            rec.log(p.events, rr.TextLog(f"[{s.name}] frame {ev.frame}: {ev.text}", level=ev.level))
+        Every k-th frame, and on every frame around events (``dense``).
+        """
+        cfg = self.config
+        i = int(frame.index)
+        want_mds = est_t is not None and (dense or (cfg.mds_every and i % cfg.mds_every == 0))
+        want_lik = est_t is not None and (dense or (cfg.likelihood_period and i % cfg.likelihood_period == 0))
+        model = s.model
+        if not (want_mds or want_lik) or model is None:
+            return
+        s.drawn.append(i)
+        prepared = self._prepared(s, frame, prepared_cache)
+        pose = checked(record.pose, (4,), "pose", problems)
+        if pose is None and box is not None:
+            pose = box_to_pose(box, model.base_wh)
+        if pose is None:
+            return
+        try:
+            if want_lik:
+                self._log_likelihood(s, model, prepared, pose, est_t)
+                truth = None if gt is None else box_to_pose(gt, model.base_wh)
+                self._log_slices(s, model, prepared, pose, truth, est_t)
+            if want_mds:
+                self._log_cloud(s, model, prepared, frame, record, pose, gt)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            problems.append(f"diagnostics failed on frame {frame_number(i)} ({exc})")
+
+    def _log_slices(self, s: _TrackerState, model, prepared, pose, truth_pose, est_t) -> None:
+        at_est = likelihood_slices(model, prepared, pose, est_t)
+        at_truth = None
+        if truth_pose is not None:
+            # At the truth's centre, at its scale and the estimate's rotation: what the likelihood says there.
+            tp = np.array([truth_pose[0], truth_pose[1], truth_pose[2], pose[3]])
+            at_truth = likelihood_slices(model, prepared, tp, est_t)
+        why.log_slices(self.stream, s.paths, at_est, at_truth, s.color, GT_COLOR)
+        s.clear_next.append(f"{s.paths.slices}/estimate")
+        s.clear_next.append(f"{s.paths.slices}/truth")
+
+    def _redo_around(self, s: _TrackerState, first: int, last: int) -> None:
+        """The costly views of frames ``first..last`` (0-based indices) kept in memory, logged at their frames."""
+        here = self._recent[-1][0]
+        for frame, records in list(self._recent):
+            i = int(frame.index)
+            if not first <= i <= last or i == int(here.index):
+                continue
+            record = records[s.index]
+            if i in s.drawn:
+                continue  # already drawn on its own frame
+            self._set_time(frame)
+            problems: list[str] = []
+            gt = checked(frame.gt, (4,), "ground truth", problems)
+            box = checked(record.box, (4,), "box", problems)
+            est_t = checked(record.estimate_template, (-1, -1), "estimate_template", problems)
+            self._log_diagnostics(s, frame, record, box, gt, est_t, {}, problems, dense=True)
+            # The views of a past frame show on that frame only.
+            nxt = frame_number(i) + 1
+            self.stream.set_time(P.FRAME_TIMELINE, sequence=nxt)
+            for path in s.clear_next:
+                self.stream.log(path, rr.Clear(recursive=False))
+            s.clear_next = []
+        self._set_time(here)
+
+    def _log_events(self, s: _TrackerState, frame, found: dict) -> None:
+        """Events, diagnoses and suspects of the diagnoser, each on the frame it belongs to."""
+        rec, p = self.stream, s.paths
+        number = frame_number(frame.index)
+        for ev in found.get("events", ()):
+            if ev.frame != number:  # a drift is reported on the frame where it began
+                self._at_number(ev.frame)
+            rec.log(p.events, rr.TextLog(viewer_safe(f"[{s.name}] frame {ev.frame}: {ev.text}"), level=ev.level))
             if ev.kind in ("drift", "lost", "recovered") and np.isfinite(ev.iou):
                 rec.log(p.marker(ev.kind), rr.Scalars(ev.iou))
-            if ev.frame != i:
-                rec.set_time(P.FRAME_TIMELINE, sequence=i)
-                if frame.time is not None:
-                    rec.set_time(P.TIME_TIMELINE, duration=float(frame.time))
-        if problems:
-            self._warn(s, problems)
+            self._event_record(s, ev.kind, ev.frame, ev.level, ev.text)
+            if ev.frame != number:
+                self._set_time(frame)
+            if ev.kind == "lost":
+                s.losses.append(ev.frame)
+            elif ev.kind == "drift":
+                s.drifts.append(ev.frame)
+            elif ev.kind == "storm":
+                s.n_storms += 1
+        for d in found.get("diagnoses", ()):
+            s.diagnoses.append(d)
+            rec.log(p.events, rr.TextLog(viewer_safe(f"[{s.name}] {d.text}"), level="ERROR"))
+            self._event_record(s, "diagnosis", d.lost_at, "ERROR", d.text, cause=d.cause, evidence=d.as_dict())
+            # The views back to the drift onset, and on for a few frames.
+            self._redo_around(s, d.drift_began - 1 - self.config.diagnosis.look_before, d.lost_at - 1)
+            s.dense_until = max(s.dense_until, int(frame.index) + self.config.dense_after)
+        for sp in found.get("suspects", ()):
+            rec.log(p.events, rr.TextLog(viewer_safe(f"[{s.name}] frame {sp.frame}: suspect - {sp.text}"), level="WARN"))
+            self._event_record(s, "suspect", sp.frame, "WARN", sp.text, cause=sp.kind)
+            iou_now = found["evidence"].iou if found.get("evidence") is not None else float("nan")
+            if np.isfinite(iou_now):
+                rec.log(p.marker("suspect"), rr.Scalars(iou_now))
+            s.dense_until = max(s.dense_until, int(frame.index) + self.config.dense_after)
 
-    def _model(self, s: _TrackerState) -> ObservationModel | None:
-        if not s.model_checked:
-            s.model_checked = True
-            s.model = ObservationModel.from_tracker(s.tracker)
-        return s.model
+    def _at_number(self, number: int) -> None:
+        self.stream.set_time(P.FRAME_TIMELINE, sequence=int(number))
+        if self._fps:
+            self.stream.set_time(P.TIME_TIMELINE, duration=(int(number) - 1) / self._fps)
+
+    def _event_record(self, s: _TrackerState, kind: str, number: int, level: str, text: str, cause: str = "",
+                      evidence: dict | None = None) -> None:
+        """One row per event, with its fields (``covviz events`` reads these back)."""
+        self.stream.log(
+            s.paths.event_records,
+            rr.AnyValues(
+                tracker=[s.name], kind=[kind], frame_number=[int(number)], level=[level], text=[viewer_safe(text)],
+                cause=[cause], details=[json.dumps(evidence or {}, default=float)],
+            ),
+        )
 
     def _log_likelihood(self, s: _TrackerState, model, prepared, pose, est_t) -> None:
         cfg, rec, p = self.config, self.stream, s.paths
-        lm = likelihood_map(model, prepared, pose, est_t, s.sigma, cfg.likelihood_grid, cfg.likelihood_reach)
+        lm = likelihood_map(model, prepared, pose, est_t, cfg.likelihood_grid, cfg.likelihood_reach)
         x0, y0, x1, y1 = lm.extent
         g = cfg.likelihood_grid
         rec.log(
@@ -632,6 +783,11 @@ class RerunLogger:
             record, s.initial_template, target, background, slots, cfg.top_k, cfg.mds_max_templates, s.rng
         )
         if len(cloud.matrices) < 3:
+            # Nothing to embed: say so in the picture, rather than leave it empty (or stale).
+            for root in (p.cloud, p.cloud_zoom):
+                rec.log(f"{root}", rr.Clear(recursive=True))
+                rec.log(f"{root}/note", rr.TextLog(f"frame {frame_number(frame.index)}: only {len(cloud.matrices)} "
+                                                   "matrices (no templates or no target): no picture", level="WARN"))
             return
         D = distance_matrix(cloud.matrices)
         i = int(frame.index)
@@ -641,11 +797,13 @@ class RerunLogger:
         # the target's place in it show.
         self._log_picture(s, p.cloud, s.mds, D, cloud.kinds, cloud.keys, i, labels=False)
         keep = cloud.kinds != "background"
+        stress_zoom = None
         if keep.sum() >= 3:
             keys = [k for k, m in zip(cloud.keys, keep) if m]
-            self._log_picture(
+            stress_zoom = self._log_picture(
                 s, p.cloud_zoom, s.mds_zoom, D[np.ix_(keep, keep)], cloud.kinds[keep], keys, i, labels=True
             )
+        self._log_cloud_health(s, D, cloud.kinds, stress_zoom)
         if len(bg_poses):
             c = closed_strips(pose_corners(bg_poses, model.base_wh)).astype(np.float32)
             rec.log(
@@ -654,10 +812,38 @@ class RerunLogger:
             )
             s.clear_next.append(p.background)
 
+    def _log_cloud_health(self, s: _TrackerState, D, kinds, stress_zoom) -> None:
+        """The target's gap to the template cloud, the background's margin, and the cloud picture's stress.
+
+        The gap is the target's distance to its nearest generated template. On track it is
+        the ordinary distance between a template and a fresh observation (~1, far larger than
+        the cloud's width), so it is logged relative to its own median over the last frames on
+        track: 1 is as healthy as usual, 2 and more says the target has left the cloud's reach.
+        The margin is the nearest background region's gap minus the target's: positive while
+        the target is nearer the cloud than any background region, negative when some
+        background would match the templates better.
+        """
+        rec, p = self.stream, s.paths
+        gen = np.flatnonzero((kinds == "template") | (kinds == "top"))
+        tgt = np.flatnonzero(kinds == "target")
+        bg = np.flatnonzero(kinds == "background")
+        if stress_zoom is not None:
+            rec.log(f"{p.cloud_health}/stress", rr.Scalars(float(stress_zoom)))
+        if not len(gen) or not len(tgt):
+            return
+        gap = float(D[tgt[0], gen].min())
+        if s.last_iou is not None and s.last_iou >= self.config.diagnosis.on_track_iou:
+            s.healthy_gap.append(gap)
+        level = float(np.median(s.healthy_gap)) if len(s.healthy_gap) >= 3 else float("nan")
+        if np.isfinite(level) and level > 0:
+            rec.log(f"{p.cloud_health}/gap", rr.Scalars(gap / level))
+        if len(bg):
+            rec.log(f"{p.cloud_health}/margin", rr.Scalars(float(D[np.ix_(bg, gen)].min(axis=1).min() - gap)))
+
     def _log_picture(
         self, s: _TrackerState, root: str, mds, D, kinds, keys, frame_index: int, labels: bool
-    ) -> None:
-        """MDS of ``D`` aligned to ``mds``'s previous picture, logged as one Points2D per kind under ``root``."""
+    ) -> float:
+        """MDS of ``D`` aligned to ``mds``'s previous picture, one Points2D per kind under ``root``; its stress-1."""
         rec = self.stream
         X = mds.fit(D, keys)
 
@@ -670,7 +856,7 @@ class RerunLogger:
             "background": {"colors": [BACKGROUND_COLOR], "radii": [-4.0]},
             "estimate": {"colors": [s.color], "radii": [-5.0], **lab("estimate")},
             "initial": {"colors": [INITIAL_COLOR], "radii": [-5.0], **lab("initial")},
-            "target": {"colors": [GT_COLOR], "radii": [-5.5], "labels": [f"target (frame {frame_index})"]},
+            "target": {"colors": [GT_COLOR], "radii": [-5.5], "labels": [f"target (frame {frame_number(frame_index)})"]},
         }
         for order, kind in enumerate(style):
             m = kinds == kind
@@ -684,44 +870,50 @@ class RerunLogger:
         lo, hi = X.min(axis=0), X.max(axis=0)
         pad = 0.15 * (hi - lo).max() + 1e-6
         rec.log(f"{root}/margin", rr.Points2D([lo - pad, hi + pad], radii=[0.0], colors=[(0, 0, 0, 0)]))
+        return stress1(X, D)
 
     # ------------------------------------------------------------------ #
     def on_end(self, results) -> None:
         rec = self.stream
         try:
+            self.diagnoser.on_end(results)
+            last = frame_number(self._last_frame) if self._last_frame >= 0 else 0
             lines = ["# Summary of the run", ""]
             interrupted = any(getattr(r, "interrupted", False) for r in results)
             if interrupted:
                 lines += [
                     (
-                        f"**The run was interrupted** after frame {self._last_frame}; "
+                        f"**The run was interrupted** after frame {last}; "
                         "the recording holds every frame done until then."
                     ),
                     "",
                 ]
             lines += [
-                "| tracker | frames | fps | success AUC | P@20 | mean IoU | losses | drift began at | storms |",
+                "| tracker | frames | fps | success AUC | P@20 | mean IoU | lost at (cause) | drift began at | storms |",
                 "|---|---|---|---|---|---|---|---|---|",
             ]
             for s, r in zip(self._states, results):
-                if len(r.boxes):
+                if len(r.boxes) and not nothing_to_score(r.groundtruth):
                     m = evaluate(r.boxes, r.groundtruth)
                     auc, p20, miou = f"{m.success_auc:.3f}", f"{m.precision_20:.3f}", f"{m.mean_iou:.3f}"
                 else:
                     auc = p20 = miou = "–"
-                ev = s.events
+                causes = {d.lost_at: d.cause for d in s.diagnoses}
+                lost = ", ".join(f"{f} ({causes.get(f, '?').replace('_', ' ')})" for f in s.losses) or "none"
                 lines.append(
                     f"| {s.name} | {len(r.boxes)} | {r.fps:.1f} | {auc} | {p20} | {miou} | "
-                    f"{', '.join(map(str, ev.losses)) or 'none'} | {', '.join(map(str, ev.drifts)) or '–'} | "
-                    f"{len(ev.storms) + int(ev.storm)} |"
+                    f"{lost} | {', '.join(map(str, s.drifts)) or '–'} | {s.n_storms} |"
                 )
+            cards = [f"* **{s.name}** {d.text}" for s in self._states for d in s.diagnoses]
+            if cards:
+                lines += ["", "## Why it was lost", "", *cards]
             rec.log(
                 P.SUMMARY,
                 rr.TextDocument(viewer_safe("\n".join(lines) + "\n"), media_type=rr.MediaType.MARKDOWN),
                 static=True,
             )
             if interrupted and self._last_frame >= 0:
-                rec.set_time(P.FRAME_TIMELINE, sequence=self._last_frame)
+                rec.set_time(P.FRAME_TIMELINE, sequence=last)
                 for s in self._states:
                     rec.log(s.paths.events, rr.TextLog("run interrupted after this frame", level="WARN"))
         except Exception as exc:  # noqa: BLE001 - never let the summary hide the run's own outcome
@@ -731,14 +923,10 @@ class RerunLogger:
                 self.close()
 
     def close(self) -> None:
-        """Flush everything logged so far and disconnect the stream (finalises an ``.rrd`` file).
+        """Send everything logged so far and disconnect the stream (finalises an ``.rrd`` file).
 
         A live viewer that went away cannot take the rest: that is a warning, not an error
-        (the file sink, if any, has everything).
+        (the file sink, if any, has everything). A file cut short (a full disk) raises
+        :class:`~covviz.errors.WriteError` (see :func:`~covviz.viz.sinks.close_stream`).
         """
-        try:
-            self.stream.flush(timeout_sec=FLUSH_TIMEOUT)
-        except RuntimeError as exc:
-            log.warning("the recording could not be fully sent (%s); is the viewer still running?", exc)
-        finally:
-            self.stream.disconnect()
+        close_stream(self.stream, timeout=FLUSH_TIMEOUT)

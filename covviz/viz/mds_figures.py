@@ -8,10 +8,16 @@
 (b) **Random walk of the templates.** The manifold tracker is run up to the
     last chosen frame; at each chosen frame (1-based, default 1, 101, 201, 501,
     801 as far as the sequence reaches) its generated templates (top 10 by
-    weight and a sample of the others), the estimate's template and the
-    target descriptor are collected, and all of them are embedded together
-    (one MDS), with the initial template: the templates follow the target
-    across the manifold.
+    weight and a sample of the others), the estimate's template, the target
+    descriptor and background descriptors around it are collected, and all
+    of them are embedded together (one MDS), with the initial template: the
+    templates follow the target across the manifold, away from the
+    background (the paper's caption).
+
+One observation model serves both figures: the manifold tracker's, built at
+its initialisation on frame 1 (:class:`covviz.observation.ObservationModel`,
+taken from the tracker's init record), so a descriptor here is exactly what
+the tracker would observe at that box. Each figure names the model it used.
 
 Distances are computed in batches (:func:`covviz.embedding.distance_matrix`);
 the embedding is classical MDS or SMACOF started from it (both deterministic). The data functions return arrays (no rerun); the logging
@@ -24,15 +30,17 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from covviz.descriptor import DEFAULT_EPS, descriptors
 from covviz.embedding import distance_matrix, embed
+from covviz.errors import InputError
 from covviz.metrics import iou, valid_rows
+from covviz.observation import ObservationModel, box_to_pose
 from covviz.spd import expm
-from covviz.trackers.base import to_gray
-from covviz.viz.diagnostics import ObservationModel, box_to_pose, top_k
+from covviz.viz.diagnostics import top_k
+from covviz.viz.palette import BACKGROUND_COLOR as BLUE
+from covviz.viz.palette import GT_COLOR as RED
+from covviz.viz.palette import INITIAL_COLOR as WHITE
 
 __all__ = [
     "DEFAULT_FRAMES",
@@ -49,10 +57,6 @@ log = logging.getLogger("covviz.viz")
 
 #: The paper's frames (1-based) for the random-walk figure.
 DEFAULT_FRAMES = (1, 101, 201, 501, 801)
-
-RED = (235, 64, 52)
-BLUE = (50, 120, 255)
-WHITE = (255, 255, 255)
 
 
 @dataclass(frozen=True)
@@ -78,9 +82,8 @@ class MDSFiguresConfig:
         Seeds the background positions, the template samples and the tracker.
     n_particles : int, optional
         Particles of the tracker (default: its own).
-    patch_size : int
-    eps : float
-        Descriptor regulariser.
+    n_walk_background : int
+        Background regions around the target at each frame of figure (b).
     """
 
     frames: tuple = DEFAULT_FRAMES
@@ -92,8 +95,7 @@ class MDSFiguresConfig:
     method: str = "classical"
     seed: int = 0
     n_particles: int | None = None
-    patch_size: int = 32
-    eps: float = DEFAULT_EPS
+    n_walk_background: int = 4
 
     def __post_init__(self):
         if not self.frames or any(int(f) < 1 for f in self.frames):
@@ -106,39 +108,38 @@ class MDSFiguresConfig:
 
 @dataclass(frozen=True)
 class Separation:
-    """Figure (a): coordinates, kinds (``target``/``background``) and 0-based frames of the points."""
+    """Figure (a): coordinates, kinds (``target``/``background``), 1-based frames, and the model's name."""
 
     coords: np.ndarray
     kinds: np.ndarray
     frames: np.ndarray
+    model: str = ""
 
 
 @dataclass(frozen=True)
 class RandomWalk:
-    """Figure (b): coordinates, kinds (``initial``/``template``/``top``/``estimate``/``target``), 1-based frames."""
+    """Figure (b): coordinates, kinds, 1-based frames, and the observation model the tracker used.
+
+    Kinds: ``initial``, ``template``, ``top``, ``estimate``, ``target``, ``background``.
+    """
 
     coords: np.ndarray
     kinds: np.ndarray
     frames: np.ndarray
+    model: ObservationModel | None = None
 
 
-def _region_descriptors(image: np.ndarray, boxes: np.ndarray, cfg: MDSFiguresConfig) -> np.ndarray:
-    """Descriptors of axis-aligned boxes of one size (the first box's), with the tracker's anti-aliasing."""
-    w, h = float(boxes[0, 2]), float(boxes[0, 3])
-    gray = to_gray(image)
-    per_sample = min(w, h) / cfg.patch_size
-    step = int(per_sample // 2) if per_sample >= 4 else 1
-    step_exact = 1.0
-    if step > 1:
-        H, W = gray.shape
-        gray = cv2.resize(
-            gray, (max(1, round(W / step)), max(1, round(H / step))), interpolation=cv2.INTER_AREA
-        )
-        step_exact = W / gray.shape[1]
-    poses = np.stack(
-        [boxes[:, 0] + w / 2, boxes[:, 1] + h / 2, np.ones(len(boxes)), np.zeros(len(boxes))], axis=1
-    )
-    return descriptors(gray, poses, (w, h), cfg.patch_size, cfg.eps, step_exact)
+def _region_descriptors(model: ObservationModel, image: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Descriptors the model observes at axis-aligned boxes (centre and area; its aspect ratio)."""
+    poses = np.stack([box_to_pose(b, model.base_wh) for b in np.asarray(boxes).reshape(-1, 4)])
+    return model.descriptors(model.prepare(image), poses)
+
+
+def default_model(sequence) -> ObservationModel:
+    """The observation model of the default manifold tracker started on the sequence's first frame."""
+    from covviz.trackers.manifold import ManifoldConfig
+
+    return ObservationModel.from_config(sequence.frame(0).image, sequence.init_box, ManifoldConfig())
 
 
 def _background_boxes(gt: np.ndarray, shape, n: int, max_overlap: float, rng) -> np.ndarray:
@@ -155,9 +156,15 @@ def _background_boxes(gt: np.ndarray, shape, n: int, max_overlap: float, rng) ->
 
 
 def separation_data(
-    sequence, cfg: MDSFiguresConfig = MDSFiguresConfig(), progress: bool = False
+    sequence,
+    cfg: MDSFiguresConfig = MDSFiguresConfig(),
+    progress: bool = False,
+    model: ObservationModel | None = None,
 ) -> Separation:
     """Figure (a): target and background descriptors over the sequence, embedded by MDS.
+
+    ``model``: the tracker's observation model (figure (b)'s, ``RandomWalk.model``);
+    default :func:`default_model`.
 
     Raises
     ------
@@ -167,7 +174,8 @@ def separation_data(
     rng = np.random.default_rng([cfg.seed, 1])
     valid = np.flatnonzero(valid_rows(sequence.groundtruth))
     if len(valid) < 2:
-        raise ValueError(f"{sequence.name}: figure (a) needs ground truth on at least 2 frames")
+        raise InputError(f"{sequence.name}: figure (a) needs ground truth on at least 2 frames")
+    model = model or default_model(sequence)
     stride = max(1, int(np.ceil(len(valid) / cfg.max_target)))
     picked = valid[::stride]
     mats, kinds, frames = [], [], []
@@ -180,20 +188,21 @@ def separation_data(
         fr = sequence.frame(int(t))
         gt = sequence.groundtruth[t]
         bg = _background_boxes(gt, fr.image.shape, cfg.n_background, cfg.max_background_overlap, rng)
-        C = _region_descriptors(fr.image, np.concatenate([gt[None], bg]), cfg)
+        C = _region_descriptors(model, fr.image, np.concatenate([gt[None], bg]))
         mats.append(C)
         kinds += ["target"] + ["background"] * len(bg)
-        frames += [int(t)] * len(C)
+        frames += [int(t) + 1] * len(C)
     M = np.concatenate(mats)
     X = embed(distance_matrix(M), cfg.method)
-    return Separation(X, np.array(kinds), np.array(frames))
+    return Separation(X, np.array(kinds), np.array(frames), model.describe())
 
 
 class _WalkCollector:
     """Observer collecting templates and target descriptors at chosen 0-based frames."""
 
-    def __init__(self, tracker, indices: set[int], cfg: MDSFiguresConfig):
-        self.tracker, self.indices, self.cfg = tracker, indices, cfg
+    def __init__(self, indices: set[int], cfg: MDSFiguresConfig):
+        self.indices, self.cfg = indices, cfg
+        self.model: ObservationModel | None = None
         self.rng = np.random.default_rng([cfg.seed, 2])
         self.mats: list[np.ndarray] = []
         self.kinds: list[str] = []
@@ -206,9 +215,11 @@ class _WalkCollector:
 
     def on_frame(self, frame, records) -> None:
         i = int(frame.index)
+        r = records[0]
+        if r.model is not None:
+            self.model = r.model  # the init record: the tracker's observation model
         if i not in self.indices:
             return
-        r = records[0]
         if i == 0 and r.estimate_template is not None:
             self._add(expm(r.estimate_template), "initial", 1)
         if r.templates is not None and r.log_weights is not None:
@@ -221,11 +232,13 @@ class _WalkCollector:
             self._add(expm(r.templates[top]), "top", i + 1)
         if r.estimate_template is not None and i > 0:
             self._add(expm(r.estimate_template), "estimate", i + 1)
-        if frame.gt is not None:
-            model = ObservationModel.from_tracker(self.tracker)
-            if model is not None:
-                pose = box_to_pose(frame.gt, model.base_wh)
-                self._add(model.descriptors(model.prepare(frame.image), pose[None]), "target", i + 1)
+        if frame.gt is not None and self.model is not None:
+            bg = _background_boxes(frame.gt, frame.image.shape, self.cfg.n_walk_background,
+                                   self.cfg.max_background_overlap, self.rng)
+            C = _region_descriptors(self.model, frame.image, np.concatenate([frame.gt[None], bg]))
+            self._add(C[:1], "target", i + 1)
+            if len(bg):
+                self._add(C[1:], "background", i + 1)
 
 
 def random_walk_data(
@@ -237,16 +250,28 @@ def random_walk_data(
 
     frames = sorted({int(f) for f in cfg.frames if int(f) <= len(sequence)})
     if not frames:
-        raise ValueError(
+        raise InputError(
             f"{sequence.name}: none of the frames {list(cfg.frames)} is in the sequence "
             f"({len(sequence)} frames)"
         )
-    tracker = make(n_particles=cfg.n_particles, rng=np.random.default_rng([cfg.seed, 3]))
-    col = _WalkCollector(tracker, {f - 1 for f in frames} | {0}, cfg)
-    run(tracker, sequence, [col], max_frames=max(frames), progress=progress, seed=cfg.seed)
+    dropped = sorted({int(f) for f in cfg.frames} - set(frames))
+    if dropped:
+        log.warning("%s: frames %s are past the end (%d frames); the random walk shows %s", sequence.name,
+                    ", ".join(map(str, dropped)), len(sequence), ", ".join(map(str, frames)))
+    col = _WalkCollector({f - 1 for f in frames} | {0}, cfg)
+    with make(n_particles=cfg.n_particles, rng=np.random.default_rng([cfg.seed, 3])) as tracker:
+        run(tracker, sequence, [col], max_frames=max(frames), progress=progress, seed=cfg.seed)
+    no_target = [f for f in frames if not any(k == "target" and fr == f for k, fr in zip(col.kinds, col.frames))]
+    if no_target:
+        log.warning("%s: no ground truth at frames %s: the figure has no target (red) there", sequence.name,
+                    ", ".join(map(str, no_target)))
     M = np.concatenate(col.mats)
-    X = embed(distance_matrix(M), cfg.method)
-    return RandomWalk(X, np.array(col.kinds), np.array(col.frames))
+    D = distance_matrix(M)
+    if not np.any(D > 0):
+        raise InputError(f"{sequence.name}: every template and descriptor of the random walk is the same matrix; "
+                         "there is nothing to draw (a constant image?)")
+    X = embed(D, cfg.method)
+    return RandomWalk(X, np.array(col.kinds), np.array(col.frames), col.model)
 
 
 # --------------------------------------------------------------------------- #
@@ -267,9 +292,11 @@ def log_figures(stream, sep: Separation | None, walk: RandomWalk | None, sequenc
     import rerun as rr
 
     from covviz.viz import paths as P
-    from covviz.viz.description import MDS_DESCRIPTION
+    from covviz.viz.description import MDS_DESCRIPTION, viewer_safe
 
-    stream.log(P.DESCRIPTION, rr.TextDocument(MDS_DESCRIPTION, media_type=rr.MediaType.MARKDOWN), static=True)
+    note = _model_note(sep, walk)
+    text = MDS_DESCRIPTION + (f"\n\n**Observation model** (both figures): {note}.\n" if note else "")
+    stream.log(P.DESCRIPTION, rr.TextDocument(viewer_safe(text), media_type=rr.MediaType.MARKDOWN), static=True)
     if sep is not None:
         for kind, col in (("background", BLUE), ("target", RED)):
             m = sep.kinds == kind
@@ -307,6 +334,20 @@ def log_figures(stream, sep: Separation | None, walk: RandomWalk | None, sequenc
                     rr.Points2D(walk.coords[mk], colors=[RED], radii=[-6.0], labels=[f"target @{f}"]),
                     static=True,
                 )
+            mk = (walk.kinds == "background") & (walk.frames == f)
+            if mk.any():
+                stream.log(
+                    f"{base}/background",
+                    rr.Points2D(walk.coords[mk], colors=[BLUE], radii=[-3.0]),
+                    static=True,
+                )
+
+
+def _model_note(sep: Separation | None, walk: RandomWalk | None) -> str:
+    """The observation model's one-line description, as the figures print it."""
+    if walk is not None and walk.model is not None:
+        return f"the manifold tracker's, built on frame 1: {walk.model.describe()}"
+    return sep.model if sep is not None and sep.model else ""
 
 
 def save_pngs(sep: Separation | None, walk: RandomWalk | None, out_dir: Path, stem: str) -> list[Path]:
@@ -337,11 +378,15 @@ def save_pngs(sep: Separation | None, walk: RandomWalk | None, out_dir: Path, st
                     edgecolors="none",
                 )
             written.append(_finish(plt, fig, ax, f"{stem}: target vs background on the manifold (MDS)", 8,
-                                   out_dir / f"{stem}-mds-separation.png"))
+                                   out_dir / f"{stem}-mds-separation.png", _model_note(sep, walk)))
         if walk is not None:
             fig, ax = plt.subplots(figsize=(6, 5.2), dpi=110)
             frames = sorted({int(f) for f in walk.frames[walk.kinds != "initial"]}) or [1]
             greens = _frame_greens(frames)
+            mb = walk.kinds == "background"
+            if mb.any():
+                ax.scatter(*walk.coords[mb].T, s=12, color=rgb(BLUE), alpha=0.7, edgecolors="none",
+                           label="background (around the target)")
             for f in frames:
                 for kind, size in (("template", 10), ("top", 34)):
                     mk = (walk.kinds == kind) & (walk.frames == f)
@@ -388,18 +433,23 @@ def save_pngs(sep: Separation | None, walk: RandomWalk | None, out_dir: Path, st
                 )
             ax.scatter([], [], s=60, color=rgb(RED), marker="*", label="target (frame)")
             written.append(_finish(plt, fig, ax, f"{stem}: random walk of the templates (MDS)", 7,
-                                   out_dir / f"{stem}-mds-random-walk.png"))
+                                   out_dir / f"{stem}-mds-random-walk.png", _model_note(sep, walk)))
     return written
 
 
-def _finish(plt, fig, ax, title: str, legend_size: int, path: Path) -> Path:
-    """Title, axes and legend of an MDS figure; save it to ``path`` and close it."""
+def _finish(plt, fig, ax, title: str, legend_size: int, path: Path, note: str = "") -> Path:
+    """Title, axes, legend and the observation model's note of an MDS figure; save it to ``path``, close it."""
+    import textwrap
+
     ax.set_title(title, fontsize=10)
+    if note:
+        fig.text(0.5, 0.005, "\n".join(textwrap.wrap("Descriptors by " + note, 95)), ha="center", va="bottom",
+                 fontsize=6, color="0.75")
     ax.set_xlabel("MDS 1 (Riemannian distance units)")
     ax.set_ylabel("MDS 2")
     ax.set_aspect("equal", adjustable="datalim")
     ax.legend(loc="best", fontsize=legend_size)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.06 if note else 0, 1, 1))
     fig.savefig(path)
     plt.close(fig)
     return path

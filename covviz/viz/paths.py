@@ -191,3 +191,41 @@ class TrackerPaths:
     @property
     def events(self) -> str:
         return f"{self.root}/events"
+
+    @property
+    def event_records(self) -> str:
+        """One row per event, its fields as values (``covviz events`` reads them back)."""
+        return f"{self.root}/event_records"
+
+    # why it drifts (covviz.diagnosis)
+    @property
+    def why(self) -> str:
+        return f"{self.root}/why"
+
+    def why_series(self, name: str) -> str:
+        """A per-frame series of the diagnosis (``d_truth``, ``best_est``, ``reach`` ...)."""
+        return f"{self.why}/{name}"
+
+    def why_label(self, label: str) -> str:
+        """Markers of the frames labelled ``model`` / ``search`` / ``estimate``."""
+        return f"{self.why}/label/{label}"
+
+    @property
+    def zoom(self) -> str:
+        """The warped patches at the estimate, the truth and the initial box, side by side."""
+        return f"{self.root}/zoom"
+
+    @property
+    def slices(self) -> str:
+        """The likelihood along scale and rotation at the estimate's and the truth's centres."""
+        return f"{self.root}/slices"
+
+    @property
+    def heatmap(self) -> str:
+        """The estimate's template, its observation and their difference as labelled 9x9 heatmaps."""
+        return f"{self.root}/heatmap"
+
+    @property
+    def cloud_health(self) -> str:
+        """Series of the template cloud: the target's gap to it, the background's margin, MDS stress."""
+        return f"{self.root}/cloud_health"

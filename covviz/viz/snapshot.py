@@ -25,7 +25,15 @@ from pathlib import Path
 
 from covviz.errors import InputError
 
-__all__ = ["SnapshotError", "find_viewer", "parse_size", "snapshot", "vulkan_available"]
+__all__ = [
+    "SnapshotError",
+    "contact_sheet",
+    "find_viewer",
+    "parse_size",
+    "snapshot",
+    "snapshot_frames",
+    "vulkan_available",
+]
 
 #: Where Vulkan loaders look for installable client drivers (ICDs).
 VULKAN_ICD_DIRS = ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d", "/usr/local/share/vulkan/icd.d")
@@ -110,7 +118,9 @@ def snapshot(
     out : path
         The PNG to write (its folder is created).
     frame : int, optional
-        Position on ``timeline`` (default: the last frame of the recording).
+        Position on ``timeline`` (default: the last frame of the recording). A
+        recording without timelines (all static, as ``covviz mds`` writes) is
+        shown as it is.
     size : (int, int)
         Window size in logical points (the PNG may be larger on HiDPI scaling).
     timeline : str
@@ -125,8 +135,23 @@ def snapshot(
         No Vulkan driver or viewer binary, the viewer did not start, or no
         screenshot was written.
     """
+    return snapshot_frames(recording, [(out, frame)], size, timeline, timeout, settle)[0]
+
+
+def snapshot_frames(
+    recording: str | Path,
+    shots: list[tuple[str | Path, int | None]],
+    size: tuple[int, int] = (1600, 900),
+    timeline: str = "frame",
+    timeout: float = 60.0,
+    settle: float = 1.0,
+) -> list[Path]:
+    """Several screenshots of one recording, ``(png, frame)`` each, from a single viewer launch.
+
+    See :func:`snapshot` for the arguments; every frame is checked before the first shot.
+    """
     recording = Path(recording).resolve()
-    out = Path(out).resolve()
+    outs = [Path(o).resolve() for o, _ in shots]
     if not recording.is_file():
         raise SnapshotError(f"{recording}: no such recording")
     if not vulkan_available():
@@ -137,9 +162,10 @@ def snapshot(
     exe = find_viewer()
     if exe is None:
         raise SnapshotError("the rerun viewer is not installed (pip install rerun-sdk)")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    if out.exists():
-        out.unlink()
+    for out in outs:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        if out.exists():
+            out.unlink()
 
     from rerun.experimental import ViewerClient
 
@@ -186,21 +212,53 @@ def snapshot(
         if rec is None:
             raise SnapshotError(f"{recording}: the viewer opened no recording from it")
         tl = next((t for t in rec.timelines if t.name == timeline), None)
-        if tl is None:
-            names = ", ".join(t.name for t in rec.timelines) or "none"
+        wanted = [f for _, f in shots]
+        if tl is None and (rec.timelines or any(f is not None for f in wanted)):
+            names = ", ".join(t.name for t in rec.timelines) or "none: the recording is static"
             raise SnapshotError(f"{recording}: no timeline {timeline!r} (timelines: {names})")
-        target = tl.end if frame is None else int(frame)
-        if not tl.start <= target <= tl.end:
-            raise SnapshotError(f"--frame {target} is outside the recording's frames {tl.start}..{tl.end}")
-        client.set_time(timeline, sequence=target, play_state="paused")
-        time.sleep(settle)
-        client.save_screenshot(str(out))  # warms up the views (images decoded, plots laid out)
-        time.sleep(settle)
-        client.save_screenshot(str(out))
+        targets = [None if tl is None else (tl.end if f is None else int(f)) for f in wanted]
+        for t in targets:
+            if tl is not None and not tl.start <= t <= tl.end:
+                raise SnapshotError(f"frame {t} is outside the recording's frames {tl.start}..{tl.end}")
+        first = True
+        for out, t in zip(outs, targets):
+            if t is not None:
+                client.set_time(timeline, sequence=t, play_state="paused")
+            time.sleep(settle)
+            if first:  # warms up the views (images decoded, plots laid out)
+                client.save_screenshot(str(out))
+                time.sleep(settle)
+                first = False
+            client.save_screenshot(str(out))
     finally:
         _stop(proc)
         if proc.stderr:
             proc.stderr.close()
-    if not out.is_file() or out.stat().st_size == 0:
-        raise SnapshotError(f"the viewer wrote no screenshot to {out}")
+    for out in outs:
+        if not out.is_file() or out.stat().st_size == 0:
+            raise SnapshotError(f"the viewer wrote no screenshot to {out}")
+    return outs
+
+
+def contact_sheet(images: list[Path], labels: list[str], out: str | Path, scale: float = 0.75) -> Path:
+    """Screenshots stacked top to bottom, each under a caption strip, scaled by ``scale``; one PNG."""
+    import cv2
+    import numpy as np
+
+    rows = []
+    for path, label in zip(images, labels):
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if img is None:
+            raise SnapshotError(f"cannot read the screenshot {path}")
+        if scale != 1.0:
+            img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        strip = np.full((34, img.shape[1], 3), 32, np.uint8)
+        cv2.putText(strip, label, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (235, 235, 235), 1, cv2.LINE_AA)
+        rows += [strip, img]
+    width = max(r.shape[1] for r in rows)
+    rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out), np.concatenate(rows, axis=0)):
+        raise SnapshotError(f"cannot write {out}")
     return out

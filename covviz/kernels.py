@@ -1,0 +1,1102 @@
+"""Compiled (numba) kernels for the manifold tracker's hot path.
+
+The numpy functions of :mod:`covviz.features`, :mod:`covviz.descriptor` and
+:mod:`covviz.trackers.manifold` stay the reference; these kernels compute the
+same quantities with less work:
+
+* :func:`warp_descriptors_fast` — from the grey frame to the descriptors in
+  one pass per particle: the bilinear warp (bit for bit what
+  :func:`covviz.features.warp_patches` gives), the 9 features and their
+  moments, quadrant by quadrant, all in scratch buffers that stay in the L1
+  cache. Nothing of size ``n x 34 x 34`` (patches, sampling maps) or
+  ``n x 9 x 1024`` (feature planes) is ever written to memory.
+  :func:`descriptors_fast` does the same from already warped patches.
+* :func:`template_distances_fast` — ``d(expm(L_i), C_i)`` for every particle:
+  the same Taylor exponential as :func:`covviz.spd.expm_taylor` and a cyclic
+  Jacobi eigensolver, vectorised *across particles* (blocks of at most
+  :data:`LANES` particles, structure-of-arrays, particle index innermost).
+* :func:`quadrant_distances_fast` — ``sqrt(8·JBLD)`` of the quadrants by
+  Cholesky factorisations, vectorised across particles the same way.
+
+Precision
+---------
+Features are float32, as in the numpy path, but each is rounded once
+(differences of the unscaled patch, scaled after; see
+:func:`_region_features`); their moments are float64 (products of float32
+values are exact in float64). Distances are float64 throughout. Against a
+float64 evaluation of the same definitions, on 10 real frames, the
+descriptors agree to 2e-7 (relative, per matrix) and the distances to 1e-6;
+the numpy path's own float32 moments and features put it up to ~8e-3 and
+~5e-5 away. Each kernel states its ``fastmath`` flags and why; none uses
+``nnan``/``ninf``/``arcp``/``afn``, so divisions, square roots and logarithms
+are IEEE:
+
+=========================  =========  ============================  ==========
+kernel                     precision  fastmath                      why
+=========================  =========  ============================  ==========
+warp (``_warp_patch``)     float32    ``contract``                  cv2.remap's FMAs, bit for bit
+features                   float32    none                          every rounding as written
+sums, moments              float64    ``contract reassoc nsz``      vectorised sums (order fixed per patch)
+distances (lanes)          float64    ``contract``                  no reassociation: lanes stay independent
+=========================  =========  ============================  ==========
+
+Determinism
+-----------
+Every particle's result depends on its inputs only: the per-particle loops
+run the same code whatever the batch, and the across-particle (lane) loops
+compute each lane with the same sequence of IEEE operations (fused
+multiply-adds included) whether a lane falls in the vectorised body or in the
+scalar remainder, and without a reduction across lanes. Results are bit for
+bit the same for any chunking, thread count or repetition (tested). One
+caveat: with Intel's SVML installed (``icc_rt``; numba reports it as
+``numba.config.USING_SVML``), numba may vectorise the per-lane logarithms with
+SVML in a loop body and call libm in its remainder, which differ in the last
+bit; the chunking tests would then fail. It is not installed here.
+
+Switches
+--------
+``COVVIZ_NO_JIT=1`` (or numba missing) sets :data:`JIT_ENABLED` to False; the
+tracker then takes the numpy path. The kernels compile on first use and are
+cached on disk (``cache=True``; numba's ``__pycache__``); :func:`kernels_cached`
+tells a CLI whether a first call will compile, :func:`warmup` compiles (or
+loads) everything.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from covviz.features import FEATURE_SCALE, N_FEATURES
+
+#: ``COVVIZ_NO_JIT=1`` (or ``true``/``yes``): the numpy path, and numba is not even imported.
+_DISABLED = os.environ.get("COVVIZ_NO_JIT", "").strip().lower() in ("1", "true", "yes")
+numba = None
+if not _DISABLED:
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency; the numpy path must not need it
+        numba = None
+
+__all__ = [
+    "JIT_ENABLED",
+    "LANES",
+    "descriptors_fast",
+    "kernels_cached",
+    "quadrant_distances_fast",
+    "template_distances_fast",
+    "warmup",
+    "warp_descriptors_fast",
+]
+
+#: True when the tracker should use these kernels: numba is importable and
+#: the environment variable ``COVVIZ_NO_JIT`` is not set to ``1``. (Without
+#: numba the functions below still run, as plain and very slow Python.)
+JIT_ENABLED = numba is not None
+
+#: Particles per structure-of-arrays block in :func:`template_distances_fast`
+#: (its loops over particles are the vectorised ones). 64: 9x9 matrices of 64
+#: lanes (41 KB each) stay in L2 and the loops are long enough to amortise
+#: their set-up; results do not depend on it.
+LANES = 64
+
+_ENTRY_POINTS = []  # the kernels called from Python, for kernels_cached()
+_THREAD = threading.local()
+
+
+def _workspace(kind: str, d: int, mats: int, vecs: int):
+    """This thread's scratch for a lane kernel: ``mats`` (d, d, LANES) and ``vecs`` (LANES,) arrays and more.
+
+    Allocated once per thread, kind and size.
+
+    Fresh allocations on every call cost more than the distances themselves:
+    ~300 KB of scratch freed and re-allocated per chunk went back to the
+    operating system and came back as page faults (0.25 ms per 600
+    particles). Results never depend on the scratch's previous content.
+    """
+    key = (kind, d)
+    ws = getattr(_THREAD, "ws", None)
+    if ws is None:
+        ws = _THREAD.ws = {}
+    if key not in ws:
+        ws[key] = (np.zeros((mats, d, d, LANES)), np.zeros((vecs, LANES)), np.zeros(LANES, dtype=np.int64),
+                   np.zeros(LANES, dtype=np.bool_))
+    return ws[key]
+
+
+def _jit(fastmath, entry=False):
+    """``numba.njit`` with the project's settings (or the plain function when numba is missing).
+
+    ``cache=True`` (compile once per machine), ``nogil=True`` (the tracker runs
+    chunks on threads), ``error_model="numpy"`` (a float division by zero
+    gives inf/nan instead of a Python exception check in every loop, which
+    also keeps loops vectorisable) and an explicit ``fastmath`` set.
+    """
+
+    def wrap(f):
+        if numba is None:  # pragma: no cover
+            return f
+        d = numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=fastmath)(f)
+        if entry:
+            _ENTRY_POINTS.append(d)
+        return d
+
+    return wrap
+
+
+# --------------------------------------------------------------------------- #
+# descriptors: warp, features, moments
+# --------------------------------------------------------------------------- #
+# fastmath sets. The warp must reproduce cv2.remap bit for bit, which computes
+# p00 + a·(p01 − p00) with fused multiply-adds: "contract" and nothing else.
+_FM_WARP = {"contract"}
+# Features: no fastmath at all, every operation rounds as written (see
+# _region_features). With "reassoc", LLVM rewrote the gain scaling and the
+# second differences and moved nearly flat patches' angles by up to 5e-3
+# (tiny gradients rounded differently point elsewhere). These loops have no
+# reductions, so they vectorise without it.
+_FM_FEAT = False
+# Sums and moments: "reassoc" (the float64 sums over a quadrant's pixels
+# vectorise; their order is fixed by the patch size, the same for every
+# particle), "contract" (FMA), "nsz". No sum ever spans two particles.
+_FM_SUM = {"contract", "reassoc", "nsz"}
+
+# atan(t)·2/π ≈ t·Σ c_k t^(2k) on [0, 1]: least squares on Chebyshev nodes
+# refined to near-minimax (Lawson); max error 2.4e-8 in float64 and 1.0e-7
+# evaluated in float32 (numpy's float32 arctan2 scaled alike: 1.1e-7).
+_ATAN_C = (
+    0.6366193493840409,
+    -0.21218448386436656,
+    0.126983780900303,
+    -0.08854508593397271,
+    0.06138413486692744,
+    -0.03559489280142916,
+    0.013918391212490978,
+    -0.002581217622318485,
+)
+
+# The kernels hard-code the feature scales the numpy path uses (the doubling
+# trick of covviz.features._fill_features and the 2/π of the angle).
+_EXPECTED_SCALE = np.array([1.0, 1.0, 1.0, 4.0, 4.0, 4.0, 2.0 / np.pi, 2.0, 2.0], dtype=np.float32)
+if not np.array_equal(FEATURE_SCALE, _EXPECTED_SCALE) or N_FEATURES != 9:  # pragma: no cover
+    raise ImportError("covviz.kernels assumes the feature scales of covviz.features; update both together")
+
+
+@_jit(_FM_WARP)
+def _warp_patch(flat, H, W, a, q, B, idx, dx, dy, al, be):
+    """Bilinear samples of one pose's grid into ``B`` (g, g), float32, BORDER_REPLICATE.
+
+    ``a`` (6,): ``x = a0 + a1·q[u] + a2·q[v]``, ``y = a3 + a4·q[u] + a5·q[v]``
+    in pixel-centre coordinates (what :func:`covviz.features.sample_grid`
+    gives cv2.remap), rounded to float32 as there; then OpenCV 5's float
+    bilinear interpolation: ``f0 = p00 + α(p01 − p00)``, ``f1 = p10 + α(p11 −
+    p10)``, ``f0 + β(f1 − f0)``, each a fused multiply-add. ``idx``, ``dx``,
+    ``dy`` (g,) int64 and ``al``, ``be`` (g,) float32 are scratch. A row is
+    two loops: the coordinates (vectorised), then the four taps and the
+    interpolation (scalar loads: LLVM will not gather from an array it cannot
+    prove distinct from the one the loop stores to).
+    """
+    g = q.shape[0]
+    lo = np.float32(-2.0)
+    xmax = np.float32(W + 1)
+    ymax = np.float32(H + 1)
+    a0, a1, a2, a3, a4, a5 = a[0], a[1], a[2], a[3], a[4], a[5]
+    # Is every tap inside the frame (no clamping needed)? The grid is an
+    # affine image of a square, so its extreme points are the four corners;
+    # one pixel of margin, as interior samples could round past a corner by
+    # an ulp.
+    inside = True
+    for v in (0, g - 1):
+        for u in (0, g - 1):
+            x = np.float32(a0 + a1 * q[u] + a2 * q[v])
+            y = np.float32(a3 + a4 * q[u] + a5 * q[v])
+            if not (x >= 0.0 and x < W - 2 and y >= 0.0 and y < H - 2):
+                inside = False
+    for v in range(g):
+        row = B[v]
+        if inside:
+            for u in range(g):
+                x = np.float32(a0 + a1 * q[u] + a2 * q[v])
+                y = np.float32(a3 + a4 * q[u] + a5 * q[v])
+                fx = np.floor(x)
+                fy = np.floor(y)
+                al[u] = x - fx
+                be[u] = y - fy
+                idx[u] = np.int64(fy) * W + np.int64(fx)
+            for u in range(g):
+                k = idx[u]
+                p00 = flat[k]
+                p01 = flat[k + 1]
+                p10 = flat[k + W]
+                p11 = flat[k + W + 1]
+                f0 = p00 + al[u] * (p01 - p00)
+                f1 = p10 + al[u] * (p11 - p10)
+                row[u] = f0 + be[u] * (f1 - f0)
+        else:
+            for u in range(g):
+                x = np.float32(a0 + a1 * q[u] + a2 * q[v])
+                y = np.float32(a3 + a4 * q[u] + a5 * q[v])
+                # Far outside, every tap is the same border pixel: clamping the
+                # coordinate first keeps the integer conversion in range and
+                # changes no value (α·(p01 − p00) = α·0).
+                x = min(max(x, lo), xmax)
+                y = min(max(y, lo), ymax)
+                fx = np.floor(x)
+                fy = np.floor(y)
+                al[u] = x - fx
+                be[u] = y - fy
+                ix = np.int64(fx)
+                iy = np.int64(fy)
+                x0 = min(max(ix, 0), W - 1)
+                x1 = min(max(ix + 1, 0), W - 1)
+                y0 = min(max(iy, 0), H - 1)
+                y1 = min(max(iy + 1, 0), H - 1)
+                idx[u] = y0 * W + x0
+                dx[u] = x1 - x0
+                dy[u] = (y1 - y0) * W
+            for u in range(g):
+                k = idx[u]
+                p00 = flat[k]
+                p01 = flat[k + dx[u]]
+                p10 = flat[k + dy[u]]
+                p11 = flat[k + dy[u] + dx[u]]
+                f0 = p00 + al[u] * (p01 - p00)
+                f1 = p10 + al[u] * (p11 - p10)
+                row[u] = f0 + be[u] * (f1 - f0)
+
+
+@_jit(_FM_FEAT)
+def _region_features(B, r0, c0, hr, hc, u, mean32, kf, F):
+    """The 9 scaled features of the ``hr x hc`` region at interior offset ``(r0, c0)`` of ``B`` into ``F``.
+
+    ``B`` (S+2, S+2) float32 is the bordered patch *before* gain
+    normalisation, ``mean32`` the mean of its interior and ``kf`` its gain
+    factor (1 without normalisation); ``u`` (S,) the centred coordinates,
+    ``F`` (9, ≥ hr·hc) float32, pixels row-major.
+
+    The features of :func:`covviz.features.patch_features`, each rounded
+    once: differences of neighbouring pixels are taken on the unscaled patch
+    (exact in float32 when the pixels are within a factor 2) and scaled
+    after, and second differences as ``(r − c) + (l − c)``. The numpy path
+    scales the patch first and forms ``(r + l) − 2c``, whose rounding errors
+    are relative to the *intensity*: on nearly flat patches they are a large
+    part of small derivatives, the angle of two such derivatives is noise,
+    and that path's descriptors (hence distances, by up to 5e-5 on real
+    frames) depend on the last bit of the gain. Here every feature is within
+    a few float32 roundings of its float64 value. The angle is a float32
+    polynomial (:data:`_ATAN_C`, 1e-7) of the exact differences. Several
+    short loops, each writing few arrays: LLVM vectorises a loop only when it
+    can check the overlap of its arrays with few run-time tests.
+    """
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    k2 = kf * np.float32(2.0)  # the derivative scale: 0.5·FEATURE_SCALE[3] == FEATURE_SCALE[7] == 2 (exact)
+    for rr in range(hr):
+        R = r0 + rr + 1
+        o = rr * hc
+        o0 = F[0, o : o + hc]
+        o1 = F[1, o : o + hc]
+        ux = u[c0 : c0 + hc]
+        yv = u[r0 + rr]
+        for cc in range(hc):
+            o0[cc] = ux[cc]
+            o1[cc] = yv
+        row = B[R, c0 : c0 + hc + 2]
+        o2 = F[2, o : o + hc]
+        o3 = F[3, o : o + hc]
+        o7 = F[7, o : o + hc]
+        for cc in range(hc):
+            ctr = row[cc + 1]
+            left = row[cc]
+            right = row[cc + 2]
+            o2[cc] = (ctr - mean32) * kf
+            o3[cc] = abs(right - left)  # unscaled until the angle is taken
+            o7[cc] = abs((right - ctr) + (left - ctr)) * k2
+        up = B[R - 1, c0 + 1 : c0 + hc + 1]
+        mid = B[R, c0 + 1 : c0 + hc + 1]
+        dn = B[R + 1, c0 + 1 : c0 + hc + 1]
+        o4 = F[4, o : o + hc]
+        o8 = F[8, o : o + hc]
+        for cc in range(hc):
+            t = up[cc]
+            b = dn[cc]
+            m = mid[cc]
+            o4[cc] = abs(b - t)
+            o8[cc] = abs((b - m) + (t - m)) * k2
+    c0f = np.float32(_ATAN_C[0])
+    c1f = np.float32(_ATAN_C[1])
+    c2f = np.float32(_ATAN_C[2])
+    c3f = np.float32(_ATAN_C[3])
+    c4f = np.float32(_ATAN_C[4])
+    c5f = np.float32(_ATAN_C[5])
+    c6f = np.float32(_ATAN_C[6])
+    c7f = np.float32(_ATAN_C[7])
+    N = hr * hc
+    gx = F[3, :N]
+    gy = F[4, :N]
+    o5 = F[5, :N]
+    o6 = F[6, :N]
+    for j in range(N):
+        ix = gx[j]
+        iy = gy[j]
+        # atan2(|Ix|, |Iy|) in [0, π/2], scaled to [0, 1]; 0 where both vanish (as arctan2).
+        mn = min(ix, iy)
+        mx = max(ix, iy)
+        t = mn / mx if mx > zero else zero
+        z = t * t
+        p = ((((((c7f * z + c6f) * z + c5f) * z + c4f) * z + c3f) * z + c2f) * z + c1f) * z + c0f
+        p = p * t
+        o6[j] = one - p if ix > iy else p
+        ix = ix * k2
+        iy = iy * k2
+        gx[j] = ix
+        gy[j] = iy
+        o5[j] = math.sqrt(ix * ix + iy * iy)
+
+
+@_jit(_FM_SUM)
+def _dot3x3(F, a0, b0, N, M, S):
+    """Nine float64 dot products of feature rows in one pass, and three sums.
+
+    ``M[a0+i, b0+j] = Σ_k F[a0+i, k]·F[b0+j, k]`` for ``i, j < 3`` and
+    ``S[b0+j] = Σ_k F[b0+j, k]``, from float32 ``F`` (products of float32
+    values are exact in float64). Six rows loaded per pixel for nine
+    products (instead of two per product); the sums stay in vector registers.
+    """
+    fa0 = F[a0, :N]
+    fa1 = F[a0 + 1, :N]
+    fa2 = F[a0 + 2, :N]
+    fb0 = F[b0, :N]
+    fb1 = F[b0 + 1, :N]
+    fb2 = F[b0 + 2, :N]
+    s00 = s01 = s02 = s10 = s11 = s12 = s20 = s21 = s22 = 0.0
+    t0 = t1 = t2 = 0.0
+    for j in range(N):
+        x0 = np.float64(fa0[j])
+        x1 = np.float64(fa1[j])
+        x2 = np.float64(fa2[j])
+        y0 = np.float64(fb0[j])
+        y1 = np.float64(fb1[j])
+        y2 = np.float64(fb2[j])
+        s00 += x0 * y0
+        s01 += x0 * y1
+        s02 += x0 * y2
+        s10 += x1 * y0
+        s11 += x1 * y1
+        s12 += x1 * y2
+        s20 += x2 * y0
+        s21 += x2 * y1
+        s22 += x2 * y2
+        t0 += y0
+        t1 += y1
+        t2 += y2
+    M[a0, b0] = s00
+    M[a0, b0 + 1] = s01
+    M[a0, b0 + 2] = s02
+    M[a0 + 1, b0] = s10
+    M[a0 + 1, b0 + 1] = s11
+    M[a0 + 1, b0 + 2] = s12
+    M[a0 + 2, b0] = s20
+    M[a0 + 2, b0 + 1] = s21
+    M[a0 + 2, b0 + 2] = s22
+    S[b0] = t0
+    S[b0 + 1] = t1
+    S[b0 + 2] = t2
+
+
+@_jit(_FM_SUM)
+def _region_moments(F, N, S, mean, M):
+    """Mean ``mean`` (9,) and centred second moments ``M`` (9, 9), float64, of the features ``F[:, :N]``.
+
+    Raw moments and sums in float64, in 3x3 blocks of features
+    (:func:`_dot3x3`), then ``M = Σ f fᵀ − N·m mᵀ``. In float64 the
+    cancellation costs ~1e-16·(mean/std)² relative, nothing for these
+    features (centred coordinates and intensity, derivatives whose mean is of
+    the order of their spread). ``S`` (9,) float64 scratch. (float32 sums,
+    even of centred features, were not enough: ``|grad I|`` is nearly a
+    function of ``|Ix|`` and ``|Iy|``, and the affine-invariant distance
+    magnifies an error in that thin direction ~100x; float32 dot products put
+    1e-5 to 1e-4 into the distances of real patches. A two-pass float64
+    version, centring first, was 25% slower for no accuracy that shows.)
+    """
+    d = F.shape[0]
+    for a0 in range(0, d, 3):
+        for b0 in range(a0, d, 3):
+            _dot3x3(F, a0, b0, N, M, S)
+    for a in range(d):
+        mean[a] = S[a] / N
+    for a in range(d):
+        for b in range(a, d):
+            v = M[a, b] - S[a] * S[b] / N
+            M[a, b] = v
+            M[b, a] = v
+
+
+@_jit(_FM_SUM)
+def _interior_sum(B):
+    """Sum of the interior of a bordered patch ``B`` (S+2, S+2) float32, in float64."""
+    g = B.shape[0]
+    s = 0.0
+    for rr in range(1, g - 1):
+        row = B[rr, 1 : g - 1]
+        for cc in range(g - 2):
+            s += row[cc]
+    return s
+
+
+@_jit(_FM_FEAT)
+def _regularize(C, eps):
+    """``C + eps·(tr C / d + 1e-12)·I`` in place (:func:`covviz.spd.regularize`)."""
+    d = C.shape[0]
+    tr = 0.0
+    for a in range(d):
+        tr += C[a, a]
+    add = eps * (tr / d + 1e-12)
+    for a in range(d):
+        C[a, a] += add
+
+
+@_jit(_FM_FEAT)
+def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q):
+    """Descriptors of one bordered patch ``B`` (S+2, S+2) float32.
+
+    Writes ``C`` (9, 9) and, with ``quadrants``, ``Q`` (4, 9, 9). ``F``
+    (9, pixels of a quadrant) float32, ``mq`` (4, 9), ``Mq`` (4, 9, 9), ``r``
+    (9,): scratch.
+    """
+    g = B.shape[0]
+    S = g - 2
+    d = 9
+    mean = _interior_sum(B) / (S * S)
+    mean32 = np.float32(mean)
+    kf = np.float32(1.0)
+    if gain_normalize:
+        # The numpy path's factor 1 / max(gain, 1e-3), in float32; applied to
+        # each feature rather than to the patch (see _region_features).
+        kf = np.float32(1.0) / max(mean32, np.float32(1e-3))
+    if S % 2 == 0:
+        h = S // 2
+        nreg = 4
+        N = h * h
+        for k in range(4):
+            r0 = h * (k // 2)
+            c0 = h * (k % 2)
+            _region_features(B, r0, c0, h, h, u, mean32, kf, F)
+            _region_moments(F, N, r, mq[k], Mq[k])
+    else:
+        nreg = 1
+        N = S * S
+        _region_features(B, 0, 0, S, S, u, mean32, kf, F)
+        _region_moments(F, N, r, mq[0], Mq[0])
+    # The whole patch: the regions' centred moments plus the spread of their means.
+    for a in range(d):
+        m = 0.0
+        for k in range(nreg):
+            m += mq[k, a]
+        r[a] = m / nreg
+    tot = nreg * N
+    for a in range(d):
+        for b in range(a, d):
+            acc = 0.0
+            for k in range(nreg):
+                acc += Mq[k, a, b] + N * (mq[k, a] - r[a]) * (mq[k, b] - r[b])
+            v = acc / (tot - 1)
+            C[a, b] = v
+            C[b, a] = v
+    _regularize(C, eps)
+    if quadrants:
+        for k in range(4):
+            for a in range(d):
+                for b in range(d):
+                    Q[k, a, b] = Mq[k, a, b] / (N - 1)
+            _regularize(Q[k], eps)
+
+
+@_jit(_FM_FEAT, entry=True)
+def _descriptors_from_patches(P, u, eps, gain_normalize, quadrants, C, Q):
+    n, g, _ = P.shape
+    S = g - 2
+    F = np.empty((9, S * S if S % 2 else (S // 2) ** 2), dtype=np.float32)
+    mq = np.empty((4, 9))
+    Mq = np.empty((4, 9, 9))
+    r = np.empty(9)
+    for i in range(n):
+        _patch_descriptors(P[i], u, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0])
+
+
+@_jit(_FM_FEAT, entry=True)
+def _descriptors_from_frame(gray, A, q, u, eps, gain_normalize, quadrants, C, Q):
+    n = A.shape[0]
+    g = q.shape[0]
+    S = g - 2
+    H, W = gray.shape
+    flat = gray.ravel()
+    B = np.empty((g, g), dtype=np.float32)
+    F = np.empty((9, S * S if S % 2 else (S // 2) ** 2), dtype=np.float32)
+    mq = np.empty((4, 9))
+    Mq = np.empty((4, 9, 9))
+    r = np.empty(9)
+    idx = np.empty(g, dtype=np.int64)
+    dx = np.empty(g, dtype=np.int64)
+    dy = np.empty(g, dtype=np.int64)
+    al = np.empty(g, dtype=np.float32)
+    be = np.empty(g, dtype=np.float32)
+    for i in range(n):
+        _warp_patch(flat, H, W, A[i], q, B, idx, dx, dy, al, be)
+        _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0])
+
+
+def _coordinates(S: int) -> np.ndarray:
+    """The centred pixel coordinates of :func:`covviz.features.patch_features`, ``(S,)`` float32."""
+    return (np.arange(S, dtype=np.float32) + 0.5) / S - 0.5
+
+
+def _outputs(n: int, quadrants: bool):
+    C = np.empty((n, 9, 9))
+    Q = np.empty((n, 4, 9, 9)) if quadrants else np.empty((1, 4, 9, 9))
+    return C, Q
+
+
+def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants: bool = True):
+    """Descriptors of warped patches, as the numpy path computes them.
+
+    Equal (within the tolerances of ``tests/test_kernels.py``) to
+    ``quadrant_covariances(patch_features(patches, gain_normalize=...,
+    quadrants=True), eps)``, or to ``covariance(patch_features(...), eps)``
+    and ``None`` without ``quadrants``.
+
+    Parameters
+    ----------
+    patches : ndarray, shape (n, S + 2, S + 2), float32
+        Bordered patches (:func:`covviz.features.warp_patches`).
+    eps : float
+        Shrinkage of :func:`covviz.spd.regularize`.
+    gain_normalize, quadrants : bool
+        As in :class:`covviz.trackers.manifold.ManifoldConfig`.
+
+    Returns
+    -------
+    C : ndarray, shape (n, 9, 9), float64
+    Q : ndarray, shape (n, 4, 9, 9), float64, or None without ``quadrants``
+        Top-left, top-right, bottom-left, bottom-right.
+
+    Notes
+    -----
+    float32 features, centred float32 dot products over each quadrant
+    (256 pixels at ``S = 32``) finished in float64; the numpy path's raw float32
+    moments are the less accurate of the two against a float64 oracle.
+    """
+    P = np.ascontiguousarray(patches, dtype=np.float32)
+    if P.ndim != 3 or P.shape[1] != P.shape[2] or P.shape[1] < 4:
+        raise ValueError(f"patches must have shape (n, S+2, S+2) with S >= 2; got {P.shape}")
+    S = P.shape[1] - 2
+    if quadrants and S % 2:
+        raise ValueError(f"quadrants need an even patch side, got {S}")
+    C, Q = _outputs(len(P), quadrants)
+    _descriptors_from_patches(P, _coordinates(S), float(eps), bool(gain_normalize), bool(quadrants), C, Q)
+    return C, (Q if quadrants else None)
+
+
+def _affine(poses, base_wh, step) -> np.ndarray:
+    """Per-pose coefficients of the sampling grid, ``(n, 6)``: those of :func:`covviz.features.sample_grid`."""
+    p = np.asarray(poses, dtype=np.float64)
+    if p.ndim == 1:
+        p = p[None]
+    if p.ndim != 2 or p.shape[1] != 4:
+        raise ValueError(f"poses must have shape (n, 4) as cx, cy, scale, theta; got {np.shape(poses)}")
+    sx, sy = (step, step) if np.isscalar(step) else step
+    c, s = np.cos(p[:, 3]), np.sin(p[:, 3])
+    sw, sh = base_wh[0] * p[:, 2], base_wh[1] * p[:, 2]
+    return np.stack(
+        [p[:, 0] / sx - 0.5, c * sw / sx, -s * sh / sx, p[:, 1] / sy - 0.5, s * sw / sy, c * sh / sy], axis=1
+    )
+
+
+def warp_descriptors_fast(
+    gray, poses, base_wh, size: int = 32, step=1.0, eps: float = 1e-3, gain_normalize: bool = True,
+    quadrants: bool = True,
+):
+    """Descriptors at ``poses`` straight from the frame: warp, features and moments fused.
+
+    The same as ``descriptors_fast(warp_patches(gray, poses, base_wh, size, 1,
+    step), ...)``; the warp is bit for bit :func:`covviz.features.warp_patches`
+    (OpenCV 5's float bilinear interpolation with BORDER_REPLICATE).
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W), float32
+    poses : ndarray, shape (n, 4)
+        ``cx, cy, scale, theta`` in pixels of the full-size frame.
+    base_wh : (float, float)
+    size : int
+        Patch side ``S``.
+    step : float or (float, float)
+        Downsampling factor of ``gray`` (see :func:`covviz.features.sample_grid`).
+    eps, gain_normalize, quadrants
+        As in :func:`descriptors_fast`.
+
+    Returns
+    -------
+    C : ndarray, shape (n, 9, 9), float64
+    Q : ndarray, shape (n, 4, 9, 9), float64, or None without ``quadrants``
+    """
+    g32 = np.ascontiguousarray(gray, dtype=np.float32)
+    if g32.ndim != 2 or min(g32.shape) < 2:
+        raise ValueError(f"gray must have shape (H, W) with H, W >= 2; got {g32.shape}")
+    if size < 2 or (quadrants and size % 2):
+        raise ValueError(f"size must be at least 2 (and even with quadrants), got {size}")
+    A = _affine(poses, base_wh, step)
+    if not np.isfinite(A).all():
+        raise ValueError("poses, base_wh or step contain NaN or inf")
+    q = (np.arange(-1, size + 1, dtype=np.float64) + 0.5) / size - 0.5  # features._unit_grid's coordinates
+    C, Q = _outputs(len(A), quadrants)
+    _descriptors_from_frame(g32, A, q, _coordinates(size), float(eps), bool(gain_normalize), bool(quadrants), C, Q)
+    return C, (Q if quadrants else None)
+
+
+# --------------------------------------------------------------------------- #
+# distances
+# --------------------------------------------------------------------------- #
+# Distances are float64 with "contract" only: fused multiply-adds, no
+# reassociation, so a lane's result is the same in the vectorised body of a
+# loop over particles as in its scalar remainder.
+_FM_DIST = {"contract"}
+_INVFACT = tuple(1.0 / math.factorial(j) for j in range(12))
+
+
+@_jit(_FM_DIST)
+def _lanes_symmul(A, B, out, m):
+    """``out = A @ B`` for each of ``m`` lanes of (9, 9, ·) arrays, ``A``, ``B`` symmetric and commuting.
+
+    ``A @ B`` is then symmetric: the upper triangle is computed as
+    ``out[i, j] = Σ_k A[i, k]·B[j, k]`` (rows of both, contiguous) and mirrored.
+    """
+    for i in range(9):
+        a = A[i]
+        for j in range(i, 9):
+            b = B[j]
+            o = out[i, j]
+            for l in range(m):
+                o[l] = (
+                    a[0, l] * b[0, l] + a[1, l] * b[1, l] + a[2, l] * b[2, l] + a[3, l] * b[3, l]
+                    + a[4, l] * b[4, l] + a[5, l] * b[5, l] + a[6, l] * b[6, l] + a[7, l] * b[7, l]
+                    + a[8, l] * b[8, l]
+                )
+    for i in range(9):
+        for j in range(i):
+            o = out[i, j]
+            src = out[j, i]
+            for l in range(m):
+                o[l] = src[l]
+
+
+@_jit(_FM_DIST)
+def _lanes_mul(A, B, out, m):
+    """``out = A @ B`` for each of ``m`` lanes, ``B`` symmetric (``out[i, j] = Σ_k A[i, k]·B[j, k]``)."""
+    for i in range(9):
+        a = A[i]
+        for j in range(9):
+            b = B[j]
+            o = out[i, j]
+            for l in range(m):
+                o[l] = (
+                    a[0, l] * b[0, l] + a[1, l] * b[1, l] + a[2, l] * b[2, l] + a[3, l] * b[3, l]
+                    + a[4, l] * b[4, l] + a[5, l] * b[5, l] + a[6, l] * b[6, l] + a[7, l] * b[7, l]
+                    + a[8, l] * b[8, l]
+                )
+
+
+@_jit(_FM_DIST)
+def _lanes_expm_shifted(X, X2, X3, E, T, c, k, sc, m):
+    """``E = expm(X − c·I)`` per lane, without the factor ``e^c``; ``X`` (9, 9, ·) symmetric, overwritten.
+
+    :func:`covviz.spd.expm_taylor`'s algorithm with the scaling chosen per
+    lane (the numpy function chooses it per batch): shift by ``c = tr X / 9``
+    (returned in ``c``), scale by ``2^-k`` until the inf-norm is at most 1/4,
+    degree-11 Taylor polynomial by Paterson–Stockmeyer (Horner in ``X³``),
+    ``k`` squarings. A lane needing fewer squarings than another keeps its
+    value through the extra ones (a select, not a product), so its result
+    does not depend on its neighbours.
+    """
+    for l in range(m):
+        s = 0.0
+        for i in range(9):
+            s += X[i, i, l]
+        c[l] = s / 9.0
+    for i in range(9):
+        xi = X[i, i]
+        for l in range(m):
+            xi[l] -= c[l]
+    kmax = 0
+    for l in range(m):
+        norm = 0.0
+        for i in range(9):
+            rs = 0.0
+            for j in range(9):
+                rs += abs(X[i, j, l])
+            norm = max(norm, rs)
+        kl = 0
+        f = 1.0
+        while norm > 0.25 and kl < 64:  # smallest k with norm / 2^k <= 1/4 (exact halvings)
+            norm *= 0.5
+            f *= 0.5
+            kl += 1
+        k[l] = kl
+        sc[l] = f
+        kmax = max(kmax, kl)
+    for i in range(9):
+        for j in range(9):
+            x = X[i, j]
+            for l in range(m):
+                x[l] = x[l] * sc[l]
+    _lanes_symmul(X, X, X2, m)
+    _lanes_symmul(X2, X, X3, m)
+    for i in range(9):
+        for j in range(9):
+            e = E[i, j]
+            x = X[i, j]
+            x2 = X2[i, j]
+            c0 = _INVFACT[9] if i == j else 0.0
+            for l in range(m):
+                e[l] = (_INVFACT[10] * x[l] + _INVFACT[11] * x2[l]) + c0
+    for blk in range(2, -1, -1):
+        _lanes_symmul(X3, E, T, m)
+        f1 = _INVFACT[3 * blk + 1]
+        f2 = _INVFACT[3 * blk + 2]
+        for i in range(9):
+            for j in range(9):
+                e = E[i, j]
+                t = T[i, j]
+                x = X[i, j]
+                x2 = X2[i, j]
+                c0 = _INVFACT[3 * blk] if i == j else 0.0
+                for l in range(m):
+                    e[l] = t[l] + ((f1 * x[l] + f2 * x2[l]) + c0)
+    for it in range(kmax):
+        _lanes_symmul(E, E, T, m)
+        for i in range(9):
+            for j in range(9):
+                e = E[i, j]
+                t = T[i, j]
+                for l in range(m):
+                    e[l] = t[l] if it < k[l] else e[l]
+
+
+@_jit(_FM_DIST)
+def _lanes_jacobi(A, m, tol, max_sweeps, t_, s_, tau_, act):
+    """Eigenvalues of symmetric (9, 9, ·) matrices, ``m`` lanes, left on the diagonal of ``A``.
+
+    Cyclic Jacobi on the upper triangle. A lane rotates ``(p, q)`` only where
+    ``a_pq² > tol²·|a_pp·a_qq|`` (relative accuracy for positive-definite
+    matrices) and is otherwise left exactly as it is (``t = s = τ = 0``), so a
+    converged lane is unchanged by the sweeps its neighbours still need.
+    Returns the sweeps run.
+    """
+    tol2 = tol * tol
+    sweeps = 0
+    for _ in range(max_sweeps):
+        any_rot = False
+        for p in range(8):
+            for q in range(p + 1, 9):
+                app = A[p, p]
+                aqq = A[q, q]
+                apq = A[p, q]
+                nact = 0
+                for l in range(m):
+                    a = apq[l]
+                    big = a * a > tol2 * abs(app[l] * aqq[l])
+                    # t = tan of the rotation angle, the smaller root of
+                    # t² + 2θt − 1 = 0 with θ = d / 2a (Rutishauser), written
+                    # without θ: one square root and one division.
+                    d = aqq[l] - app[l]
+                    ad = abs(d)
+                    t = 2.0 * (a if d >= 0.0 else -a) / (ad + math.sqrt(d * d + 4.0 * (a * a)))
+                    t = t if big else 0.0
+                    # s = sin = t / r, tau = s / (1 + cos) = t / (1 + r), r = sqrt(1 + t²):
+                    # one division for both.
+                    r = math.sqrt(t * t + 1.0)
+                    w = t / (r * (1.0 + r))
+                    t_[l] = t
+                    s_[l] = w * (1.0 + r)
+                    tau_[l] = w * r
+                    act[l] = big
+                    nact += big
+                if nact == 0:
+                    continue
+                any_rot = True
+                for l in range(m):
+                    ta = t_[l] * apq[l]
+                    app[l] -= ta
+                    aqq[l] += ta
+                    apq[l] = 0.0 if act[l] else apq[l]
+                for rr in range(9):
+                    if rr == p or rr == q:
+                        continue
+                    arp = A[min(rr, p), max(rr, p)]
+                    arq = A[min(rr, q), max(rr, q)]
+                    for l in range(m):
+                        g = arp[l]
+                        h = arq[l]
+                        arp[l] = g - s_[l] * (h + g * tau_[l])
+                        arq[l] = h + s_[l] * (g - h * tau_[l])
+        sweeps += 1
+        if not any_rot:
+            break
+    return sweeps
+
+
+@_jit(_FM_DIST, entry=True)
+def _template_distances(L, C, out, mats, vecs, k, act):
+    """The kernel of :func:`template_distances_fast`; ``mats`` (6, 9, 9, lanes), ``vecs`` (5, lanes),
+    ``k`` (lanes,) int64 and ``act`` (lanes,) bool are its workspace."""
+    n = L.shape[0]
+    lanes = mats.shape[3]
+    X, X2, X3, E, T, Cb = mats[0], mats[1], mats[2], mats[3], mats[4], mats[5]
+    c, sc, t_, s_, tau_ = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4]
+    # Equal blocks of at most `lanes` particles (150 -> 3 x 50, not 64 + 64 + 22).
+    nb = max(1, -(-n // lanes))
+    size = max(1, -(-n // nb))
+    for i0 in range(0, n, size):
+        m = min(size, n - i0)
+        for l in range(m):
+            for a in range(9):
+                for b in range(9):
+                    X[a, b, l] = -0.5 * L[i0 + l, a, b]
+                    Cb[a, b, l] = C[i0 + l, a, b]
+        # E' = expm(-L/2 - cI): the whitening expm(-L/2) = e^c E' up to the scalar,
+        # which only shifts every log-eigenvalue by 2c (added below).
+        _lanes_expm_shifted(X, X2, X3, E, T, c, k, sc, m)
+        _lanes_mul(E, Cb, T, m)  # T = E' C
+        # M = T E' = E' C E' (symmetric): upper triangle, into X (free now)
+        for i in range(9):
+            a = T[i]
+            for j in range(i, 9):
+                b = E[j]
+                o = X[i, j]
+                for l in range(m):
+                    o[l] = (
+                        a[0, l] * b[0, l] + a[1, l] * b[1, l] + a[2, l] * b[2, l] + a[3, l] * b[3, l]
+                        + a[4, l] * b[4, l] + a[5, l] * b[5, l] + a[6, l] * b[6, l] + a[7, l] * b[7, l]
+                        + a[8, l] * b[8, l]
+                    )
+        _lanes_jacobi(X, m, 1e-14, 30, t_, s_, tau_, act)
+        for l in range(m):
+            acc = 0.0
+            for a in range(9):
+                lw = math.log(max(X[a, a, l], 1e-300)) + 2.0 * c[l]
+                acc += lw * lw
+            out[i0 + l] = math.sqrt(acc)
+
+
+def template_distances_fast(L, C) -> np.ndarray:
+    """``d(expm(L_i), C_i)`` for every particle: :func:`covviz.trackers.manifold.riemann_distance_to_templates`.
+
+    Parameters
+    ----------
+    L : ndarray, shape (n, 9, 9)
+        Log-space templates (symmetric).
+    C : ndarray, shape (n, 9, 9)
+        SPD observations.
+
+    Returns
+    -------
+    ndarray, shape (n,), float64
+
+    Notes
+    -----
+    The generalized eigenvalues of ``(C, expm(L))`` are those of ``E C E``
+    with ``E = expm(-L/2)`` (Taylor, :func:`_lanes_expm_shifted`), found by
+    cyclic Jacobi (:func:`_lanes_jacobi`); both run on blocks of
+    :data:`LANES` particles with the particle index innermost, so that the
+    compiler vectorises across particles (no 9x9 loop is long enough to
+    vectorise well on its own). Agrees with the numpy function to ~1e-14.
+    """
+    L = np.ascontiguousarray(L, dtype=np.float64)
+    C = np.ascontiguousarray(C, dtype=np.float64)
+    if L.ndim != 3 or L.shape[1:] != (9, 9) or C.shape != L.shape:
+        raise ValueError(f"L and C must both have shape (n, 9, 9); got {L.shape} and {C.shape}")
+    if not (np.isfinite(L).all() and np.isfinite(C).all()):
+        raise ValueError("L or C contains NaN or inf; check the inputs that produced it")
+    out = np.empty(len(L))
+    _template_distances(L, C, out, *_workspace("template", 9, 6, 5))
+    return out
+
+
+_BIG = 2.0**500  # rescaling step of the pivot products (a power of two: exact)
+
+
+@_jit(_FM_DIST)
+def _lanes_cholesky_logdet(A, W, s, out, m):
+    """``out[l] = log det A_l`` by Cholesky for ``m`` lanes of (d, d, ·) SPD matrices (lower triangle read).
+
+    ``W`` (d, d, ·) and ``s`` (·,) scratch. The product of the pivots is kept
+    within ``2^±500`` by exact power-of-two rescaling, so one logarithm per
+    matrix suffices whatever the scale. NaN where a matrix is not
+    positive-definite.
+    """
+    d = A.shape[0]
+    prod = out  # the product of the pivots, then the log
+    cnt = W[0, d - 1]  # the upper triangle of W is free: the rescaling counts
+    for l in range(m):
+        prod[l] = 1.0
+        cnt[l] = 0.0
+    for j in range(d):
+        wj = W[j]
+        djj = wj[j]
+        ajj = A[j, j]
+        for l in range(m):
+            s[l] = ajj[l]
+        for k in range(j):
+            wjk = wj[k]
+            for l in range(m):
+                s[l] -= wjk[l] * wjk[l]
+        for l in range(m):
+            piv = math.sqrt(s[l]) if s[l] > 0.0 else math.nan
+            djj[l] = piv
+            p = prod[l] * piv
+            c = cnt[l]
+            c = c - 1.0 if p < 1.0 / _BIG else (c + 1.0 if p > _BIG else c)
+            p = p * _BIG if p < 1.0 / _BIG else (p / _BIG if p > _BIG else p)
+            prod[l] = p
+            cnt[l] = c
+        for i in range(j + 1, d):
+            wi = W[i]
+            aij = A[i, j]
+            for l in range(m):
+                s[l] = aij[l]
+            for k in range(j):
+                wik = wi[k]
+                wjk = wj[k]
+                for l in range(m):
+                    s[l] -= wik[l] * wjk[l]
+            wij = wi[j]
+            for l in range(m):
+                wij[l] = s[l] / djj[l]
+    for l in range(m):
+        out[l] = 2.0 * (math.log(prod[l]) + cnt[l] * (500.0 * math.log(2.0)))
+
+
+@_jit(_FM_DIST, entry=True)
+def _quadrant_distances(Q, ref, ref_logdet, out, mats, vecs):
+    """The kernel of :func:`quadrant_distances_fast`; ``mats`` (2, d, d, lanes), ``vecs`` (3, lanes): workspace."""
+    n, nq, d, _ = Q.shape
+    lanes = mats.shape[3]
+    A, W = mats[0], mats[1]
+    ldq, ldm, sc = vecs[0], vecs[1], vecs[2]
+    # Equal blocks of at most `lanes` particles (150 -> 3 x 50, not 64 + 64 + 22).
+    nb = max(1, -(-n // lanes))
+    size = max(1, -(-n // nb))
+    for i0 in range(0, n, size):
+        m = min(size, n - i0)
+        for k in range(nq):
+            for a in range(d):
+                for b in range(a + 1):
+                    for l in range(m):
+                        A[a, b, l] = Q[i0 + l, k, a, b]
+            _lanes_cholesky_logdet(A, W, sc, ldq, m)
+            for a in range(d):
+                for b in range(a + 1):
+                    r = ref[k, a, b]
+                    for l in range(m):
+                        A[a, b, l] = 0.5 * (r + Q[i0 + l, k, a, b])
+            _lanes_cholesky_logdet(A, W, sc, ldm, m)
+            for l in range(m):
+                J = ldm[l] - 0.5 * (ref_logdet[k] + ldq[l])
+                out[i0 + l, k] = math.sqrt(8.0 * max(J, 0.0))
+
+
+def quadrant_distances_fast(Q, ref, ref_logdet) -> np.ndarray:
+    """``sqrt(8·JBLD)`` of each particle's quadrants: :func:`covviz.trackers.manifold.quadrant_distances`.
+
+    Parameters
+    ----------
+    Q : ndarray, shape (n, 4, d, d)
+    ref : ndarray, shape (4, d, d)
+    ref_logdet : ndarray, shape (4,)
+
+    Returns
+    -------
+    ndarray, shape (n, 4), float64
+        NaN where a descriptor is not positive-definite (the numpy function raises).
+
+    Notes
+    -----
+    Cholesky log-determinants (:func:`_lanes_cholesky_logdet`) on blocks of
+    :data:`LANES` particles, particle index innermost. Agrees with the numpy
+    function to ~1e-13 in ``J``; near ``J = 0`` the square root magnifies that
+    to ~1e-6 in the distance (as it does the numpy function's own rounding).
+    """
+    Q = np.ascontiguousarray(Q, dtype=np.float64)
+    ref = np.ascontiguousarray(ref, dtype=np.float64)
+    ref_logdet = np.ascontiguousarray(ref_logdet, dtype=np.float64)
+    if Q.ndim != 4 or ref.shape != Q.shape[1:] or ref_logdet.shape != Q.shape[1:2]:
+        raise ValueError(f"shapes do not match: Q {Q.shape}, ref {ref.shape}, ref_logdet {ref_logdet.shape}")
+    out = np.empty(Q.shape[:2])
+    mats, vecs, _, _ = _workspace("quadrant", Q.shape[2], 2, 3)
+    _quadrant_distances(Q, ref, ref_logdet, out, mats, vecs)
+    return out
+
+
+# --------------------------------------------------------------------------- #
+# cold start
+# --------------------------------------------------------------------------- #
+def _warmup_calls():
+    """One small call of every public kernel with the argument types the tracker uses."""
+    rng = np.random.default_rng(0)
+    gray = rng.random((40, 40), dtype=np.float32)
+    poses = np.array([[20.0, 20.0, 1.0, 0.1], [5.0, 30.0, 0.8, -0.2]])
+    for quadrants in (True, False):
+        C, Q = warp_descriptors_fast(gray, poses, (16.0, 16.0), 8, 1.0, 1e-3, True, quadrants)
+    P = rng.random((2, 10, 10), dtype=np.float32)
+    descriptors_fast(P, 1e-3, True, True)
+    C, Q = warp_descriptors_fast(gray, poses, (16.0, 16.0), 8, 1.0, 1e-3, True, True)
+    template_distances_fast(np.zeros((2, 9, 9)), C)
+    quadrant_distances_fast(Q, Q[0], np.zeros(4))
+
+
+def kernels_cached() -> bool:
+    """Whether every kernel can be loaded from numba's on-disk cache (no compilation).
+
+    False when numba is missing, the cache is absent or stale (the source
+    changed), or numba's cache layout is not the one this function knows: then
+    a first call compiles (tens of seconds; see :func:`warmup`).
+    """
+    if numba is None:
+        return False
+    try:
+        for disp in _ENTRY_POINTS:
+            if disp.overloads:
+                continue
+            cache = disp._cache
+            index = cache._cache_file._load_index()
+            magic = disp.targetctx.codegen().magic_tuple()
+            if not any(key[1] == magic for key in index):
+                return False
+    except Exception:  # noqa: BLE001 - numba internals: any surprise means "don't know", so "no"
+        return False
+    return True
+
+
+def warmup(callback: Callable[[], None] | None = None) -> float:
+    """Compile (or load from the cache) every kernel; return the seconds it took.
+
+    Parameters
+    ----------
+    callback : callable, optional
+        Called once, before anything else, when the kernels are not all cached
+        (e.g. to print "compiling kernels (once)…").
+
+    Does nothing (and returns 0) when :data:`JIT_ENABLED` is False.
+    """
+    if not JIT_ENABLED:
+        return 0.0
+    t0 = time.perf_counter()
+    if callback is not None and not kernels_cached():
+        callback()
+    _warmup_calls()
+    return time.perf_counter() - t0

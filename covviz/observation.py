@@ -1,0 +1,490 @@
+"""The observation model: what a covariance tracker sees at any pose of a frame.
+
+One frozen object, built once when a tracker starts (:meth:`ObservationModel.build`,
+from the first frame, the initial box and the tracker's config), holds
+everything that turns a frame and a pose into the number the particle filter
+weighs by:
+
+* the target's base size ``(w, h)`` at scale 1, the anti-aliasing downsample
+  (an integer step and its exact ``(sx, sy)`` factors), the smoothing;
+* the patch size, the descriptor regulariser and the gain normalisation of
+  the features (:mod:`covviz.features`, :mod:`covviz.descriptor`);
+* the quadrant references observed at the initial box and their log-dets,
+  the quadrant weight and the likelihood's σ.
+
+Its methods are pure: :meth:`~ObservationModel.prepare` a frame once, then
+:meth:`~ObservationModel.observe` descriptors (and, given templates, their
+distances) at any poses. The tracker weighs its particles with exactly these
+methods, and so do the diagnostics (likelihood maps, the drift diagnosis) and
+the paper's MDS figures, which receive the model in the tracker's init record
+(:attr:`covviz.records.FrameRecord.model`): they never call the live tracker.
+
+The likelihood
+    ``p(z | x, C) ∝ exp(-d_eff² / 2σ²)`` with ``d_eff² = d(C, C*)²`` (the paper)
+    plus, with quadrants, ``quadrant_weight · mean of the three smallest q_k²``,
+    ``q_k = sqrt(8·J)`` (:func:`covviz.spd.distance_jbld`) of each quadrant of
+    the region against the one observed at the initial box (Porikli, Tuzel and
+    Meer, CVPR 2006). Dropping the worst quadrant keeps a partial occlusion
+    from dominating a particle's score.
+
+Determinism
+    Poses are cut into fixed chunks of :data:`OBSERVE_CHUNK`, computed the same
+    way whatever executor (and however many threads) runs them, so results do
+    not depend on the thread count: SIMD kernels round an array's tail
+    differently, and the Taylor scaling of :func:`covviz.spd.distance_riemann_log`
+    is chosen per batch, so the split itself must never depend on the threads.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from covviz.descriptor import covariance, quadrant_covariances
+from covviz.features import N_FEATURES, patch_features, warp_patches
+from covviz.particles import log_likelihood
+from covviz.spd import distance_jbld, distance_riemann_log, logdet
+from covviz.trackers.base import check_init_box, to_gray
+
+__all__ = ["OBSERVE_CHUNK", "Observation", "ObservationModel", "box_to_pose", "quadrant_term"]
+
+#: Poses per descriptor batch: the unit of work of the observation threads (fixed: see the module docstring).
+OBSERVE_CHUNK = 150
+#: Anti-aliasing: downsample the frame when a patch sample covers at least this many pixels ...
+ANTIALIAS_MIN_PIXELS = 4
+#: ... by an integer step, ``floor(pixels per sample / ANTIALIAS_DIVISOR)``.
+ANTIALIAS_DIVISOR = 2
+
+
+def quadrant_term(q: np.ndarray) -> np.ndarray:
+    """Mean of the three smallest squared quadrant distances of each row, ``(n,)``.
+
+    Dropping the largest keeps one occluded (or otherwise changed) quadrant
+    from dominating a particle's score.
+    """
+    q2 = np.asarray(q, dtype=np.float64) ** 2
+    k = q2.shape[-1]
+    if k < 2:
+        return q2.sum(axis=-1)
+    return (q2.sum(axis=-1) - q2.max(axis=-1)) / (k - 1)
+
+
+def box_to_pose(box, base_wh) -> np.ndarray:
+    """An axis-aligned box ``x, y, w, h`` as a pose ``cx, cy, scale, theta`` for a region of ``base_wh``.
+
+    The scale is the geometric mean ``sqrt(w h / (w0 h0))``; theta is 0 (OTB
+    ground truth is unrotated).
+    """
+    x, y, w, h = np.asarray(box, dtype=np.float64).reshape(4)
+    s = float(np.sqrt(max(w * h, 1e-12) / (base_wh[0] * base_wh[1])))
+    return np.array([x + w / 2, y + h / 2, s, 0.0])
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Observation:
+    """What the model observed at a batch of poses.
+
+    Attributes
+    ----------
+    descriptors : ndarray, shape (n, 9, 9)
+        ``C*`` at each pose (SPD).
+    quadrants : ndarray, shape (n, 4, 9, 9), or None
+        The quadrants' descriptors (None without quadrants).
+    distances : ndarray, shape (n,), or None
+        ``d(C_i, C*_i)`` of each pose's template (None without templates).
+    quadrant_distances : ndarray, shape (n, 4), or None
+        ``sqrt(8·J)`` of each quadrant against the reference (None without
+        templates or quadrants).
+    likelihood_distances : ndarray, shape (n,), or None
+        ``d_eff``, what the likelihood weighs by (None without templates).
+    """
+
+    descriptors: np.ndarray
+    quadrants: np.ndarray | None = None
+    distances: np.ndarray | None = None
+    quadrant_distances: np.ndarray | None = None
+    likelihood_distances: np.ndarray | None = None
+
+
+def _frozen(a: np.ndarray | None) -> np.ndarray | None:
+    if a is None:
+        return None
+    a = np.array(a, dtype=np.float64)
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class ObservationModel:
+    """The frozen observation model of a covariance tracker (see the module docstring).
+
+    Build it with :meth:`build`; every attribute is fixed from then on and its
+    arrays are read-only, so one model can be shared by threads (the
+    tracker's, the recorder's).
+
+    Attributes
+    ----------
+    base_wh : (float, float)
+        Width and height of the target region at scale 1, pixels.
+    step : int
+        Integer anti-aliasing downsample of the frame (1: none).
+    step_xy : (float, float)
+        Its exact x and y factors (the downsampled size is rounded).
+    patch_size : int
+    eps : float
+        Descriptor regulariser.
+    gain_normalize : bool
+    smooth_sigma : float
+        Gaussian smoothing of the (downsampled) frame, pixels; 0: none.
+    likelihood_sigma : float
+        σ of the likelihood ``exp(-d_eff² / 2σ²)``.
+    quadrant_weight : float
+    quadrant_reference : ndarray, shape (4, 9, 9), or None
+        The quadrants observed at the initial box (None: the paper's
+        likelihood, without the quadrant term).
+    quadrant_logdet : ndarray, shape (4,), or None
+        Their log-determinants.
+    jit : bool
+        Observe with the compiled kernels (:mod:`covviz.kernels`) when they are
+        available (``COVVIZ_NO_JIT=1`` or no numba: the numpy path, always).
+        The kernels fuse the warp, the features and the moments per pose and
+        agree with the numpy path to ~1e-3 in a distance (they are closer to
+        float64 arithmetic than it is); the timings then report the fused
+        kernel under ``features``.
+    """
+
+    base_wh: tuple[float, float]
+    step: int = 1
+    step_xy: tuple[float, float] = (1.0, 1.0)
+    patch_size: int = 32
+    eps: float = 1e-3
+    gain_normalize: bool = True
+    smooth_sigma: float = 0.0
+    likelihood_sigma: float = 0.5
+    quadrant_weight: float = 1.0
+    quadrant_reference: np.ndarray | None = field(default=None, repr=False)
+    quadrant_logdet: np.ndarray | None = field(default=None, repr=False)
+    jit: bool = True
+
+    def __post_init__(self):
+        object.__setattr__(self, "base_wh", (float(self.base_wh[0]), float(self.base_wh[1])))
+        object.__setattr__(self, "step_xy", (float(self.step_xy[0]), float(self.step_xy[1])))
+        object.__setattr__(self, "quadrant_reference", _frozen(self.quadrant_reference))
+        object.__setattr__(self, "quadrant_logdet", _frozen(self.quadrant_logdet))
+        if (self.quadrant_reference is None) != (self.quadrant_logdet is None):
+            raise ValueError("quadrant_reference and quadrant_logdet come together")
+
+    # ------------------------------------------------------------------ #
+    @classmethod
+    def build(
+        cls,
+        frame: np.ndarray,
+        box,
+        *,
+        patch_size: int = 32,
+        eps: float = 1e-3,
+        gain_normalize: bool = True,
+        smooth_sigma: float = 0.0,
+        antialias: bool = True,
+        quadrants: bool = True,
+        quadrant_weight: float = 1.0,
+        likelihood_sigma: float = 0.5,
+        jit: bool = True,
+    ) -> ObservationModel:
+        """The model of a tracker started on ``frame`` at ``box`` (``x, y, w, h``, 0-based pixels).
+
+        Fixes the base size, the anti-aliasing step (frames are downsampled by
+        an integer step when a patch sample spans ``ANTIALIAS_MIN_PIXELS`` or
+        more pixels) and, with ``quadrants``, observes the quadrant references
+        at the box.
+        """
+        x, y, w, h = check_init_box(box, np.shape(frame))
+        per_sample = min(w, h) / patch_size
+        step = int(per_sample // ANTIALIAS_DIVISOR) if (antialias and per_sample >= ANTIALIAS_MIN_PIXELS) else 1
+        H, W = np.shape(frame)[:2]
+        step_xy = (1.0, 1.0)
+        if step > 1:
+            shape = _downsampled_shape(H, W, step)
+            step_xy = (W / shape[1], H / shape[0])
+        model = cls(
+            base_wh=(w, h),
+            step=step,
+            step_xy=step_xy,
+            patch_size=patch_size,
+            eps=eps,
+            gain_normalize=gain_normalize,
+            smooth_sigma=smooth_sigma,
+            likelihood_sigma=likelihood_sigma,
+            quadrant_weight=quadrant_weight,
+            jit=jit,
+        )
+        if quadrants:
+            if patch_size % 2:
+                raise ValueError(f"quadrants need an even patch_size, got {patch_size}")
+            Q0 = model._observe_quadrants(model.prepare(frame), np.array([[x + w / 2, y + h / 2, 1.0, 0.0]]))[0]
+            model = cls(**{**model._fields(), "quadrant_reference": Q0, "quadrant_logdet": logdet(Q0)})
+        return model
+
+    @classmethod
+    def from_config(cls, frame: np.ndarray, box, config) -> ObservationModel:
+        """:meth:`build` with the observation fields of a tracker config (e.g. ``ManifoldConfig``)."""
+        return cls.build(
+            frame,
+            box,
+            patch_size=config.patch_size,
+            eps=config.eps,
+            gain_normalize=config.gain_normalize,
+            smooth_sigma=config.smooth_sigma,
+            antialias=config.antialias,
+            quadrants=config.quadrants,
+            quadrant_weight=config.quadrant_weight,
+            likelihood_sigma=config.likelihood_sigma,
+            jit=getattr(config, "jit", True),
+        )
+
+    def _fields(self) -> dict:
+        return {name: getattr(self, name) for name in self.__dataclass_fields__}
+
+    @property
+    def quadrants(self) -> bool:
+        """Whether the likelihood has the quadrant term."""
+        return self.quadrant_reference is not None
+
+    @property
+    def base_size(self) -> float:
+        """``sqrt(w·h)`` of the initial box, pixels."""
+        return float(np.sqrt(self.base_wh[0] * self.base_wh[1]))
+
+    def describe(self) -> str:
+        """One line naming the model's settings (for figure captions and recordings)."""
+        w, h = self.base_wh
+        aa = f"frame downsampled ×{self.step_xy[0]:.2f}×{self.step_xy[1]:.2f}" if self.step > 1 else "full resolution"
+        return (
+            f"{self.patch_size}×{self.patch_size} patches of a {w:.0f}×{h:.0f} region at scale 1, {aa}, "
+            f"{'gain-normalised' if self.gain_normalize else 'raw'} features, ε={self.eps:g}, "
+            f"σ={self.likelihood_sigma:g}, "
+            + (f"quadrant term (weight {self.quadrant_weight:g})" if self.quadrants else "the paper's likelihood")
+        )
+
+    # ------------------------------------------------------------------ #
+    def prepare(self, frame: np.ndarray) -> np.ndarray:
+        """A frame as the model samples it: float32 grey in ``[0, 1]``, downsampled and smoothed as set."""
+        g = to_gray(frame)
+        if self.step > 1:
+            H, W = g.shape
+            h, w = _downsampled_shape(H, W, self.step)
+            g = cv2.resize(g, (w, h), interpolation=cv2.INTER_AREA)
+        if self.smooth_sigma > 0:
+            g = cv2.GaussianBlur(g, (0, 0), self.smooth_sigma)
+        return g
+
+    def _sample_step(self):
+        return self.step_xy if self.step > 1 else 1.0
+
+    @property
+    def compiled(self) -> bool:
+        """Whether this model observes with the compiled kernels (``jit`` and available)."""
+        return self.jit and _kernels().JIT_ENABLED
+
+    def _observe_quadrants(self, gray: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        return self.quadrant_descriptors(gray, poses)[1]
+
+    def _template_distances(self, L: np.ndarray, C: np.ndarray) -> np.ndarray:
+        if self.compiled:
+            return _kernels().template_distances_fast(L, np.broadcast_to(C, L.shape))
+        return distance_riemann_log(L, C)
+
+    def _quadrant_distances(self, Q: np.ndarray) -> np.ndarray:
+        if self.compiled:
+            return _kernels().quadrant_distances_fast(Q, self.quadrant_reference, self.quadrant_logdet)
+        return distance_jbld(self.quadrant_reference, Q, logdet_a=self.quadrant_logdet)
+
+    def _chunk(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
+        """One chunk: descriptors (and distances), with the seconds of its four stages."""
+        if self.compiled:
+            return self._chunk_compiled(gray, poses, templates)
+        t0 = time.perf_counter()
+        P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
+        t1 = time.perf_counter()
+        F = patch_features(P, gain_normalize=self.gain_normalize, quadrants=self.quadrants)
+        t2 = time.perf_counter()
+        if self.quadrants:
+            C, Q = quadrant_covariances(F, self.eps)
+        else:
+            C, Q = covariance(F, self.eps), None
+        t3 = time.perf_counter()
+        d = q = None
+        if templates is not None:
+            d = distance_riemann_log(templates, C)
+            if Q is not None:
+                q = distance_jbld(self.quadrant_reference, Q, logdet_a=self.quadrant_logdet)
+        t4 = time.perf_counter()
+        return C, Q, d, q, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)
+
+    def _chunk_compiled(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None):
+        """:meth:`_chunk` with the compiled kernels: warp, features and covariance in one (timed as ``features``)."""
+        t0 = time.perf_counter()
+        C, Q = _kernels().warp_descriptors_fast(
+            gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize,
+            self.quadrants,
+        )
+        t1 = time.perf_counter()
+        d = q = None
+        if templates is not None:
+            d = _kernels().template_distances_fast(templates, C)
+            if Q is not None:
+                q = _kernels().quadrant_distances_fast(Q, self.quadrant_reference, self.quadrant_logdet)
+        t2 = time.perf_counter()
+        return C, Q, d, q, (0.0, t1 - t0, 0.0, t2 - t1)
+
+    def observe(
+        self,
+        gray: np.ndarray,
+        poses,
+        templates: np.ndarray | None = None,
+        executor=None,
+        threads: int = 1,
+        timings: dict | None = None,
+    ) -> Observation:
+        """Descriptors at ``poses`` of a prepared frame and, given templates, their distances.
+
+        Parameters
+        ----------
+        gray : ndarray, shape (H, W), float32
+            A frame from :meth:`prepare`.
+        poses : ndarray, shape (n, 4)
+            ``cx, cy, scale, theta`` in the frame's (full-resolution) pixels.
+        templates : ndarray, shape (n, 9, 9) or (9, 9), optional
+            Log-space templates, one per pose or one for all.
+        executor : concurrent.futures.Executor, optional
+            Runs the chunks (:data:`OBSERVE_CHUNK` poses each); None: in this thread.
+        threads : int
+            The executor's workers (for the stage timings: a stage's summed
+            time is divided by the workers that shared it).
+        timings : dict, optional
+            Filled with the seconds of ``warp``, ``features``, ``covariance``
+            and (with templates) ``distances``.
+
+        Returns
+        -------
+        Observation
+        """
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
+        n = len(poses)
+        if templates is not None:
+            L = np.asarray(templates, dtype=np.float64)
+            if L.shape == (N_FEATURES, N_FEATURES):
+                L = np.broadcast_to(L, (n, N_FEATURES, N_FEATURES))
+            if L.shape != (n, N_FEATURES, N_FEATURES):
+                raise ValueError(f"templates must have shape ({n}, 9, 9) or (9, 9); got {L.shape}")
+            templates = np.ascontiguousarray(L)
+        if n == 0:
+            empty = np.zeros((0, N_FEATURES, N_FEATURES))
+            return Observation(empty, np.zeros((0, 4, N_FEATURES, N_FEATURES)) if self.quadrants else None,
+                               None if templates is None else np.zeros(0),
+                               np.zeros((0, 4)) if (templates is not None and self.quadrants) else None,
+                               None if templates is None else np.zeros(0))
+        parts = [slice(i, min(i + OBSERVE_CHUNK, n)) for i in range(0, n, OBSERVE_CHUNK)]
+
+        def work(sl):
+            return self._chunk(gray, poses[sl], None if templates is None else templates[sl])
+
+        if executor is None or len(parts) == 1:
+            outs = [work(sl) for sl in parts]
+            share = 1
+        else:
+            outs = list(executor.map(work, parts))
+            share = max(1, min(int(threads), len(parts)))
+
+        def cat(j):
+            if outs[0][j] is None:
+                return None
+            return outs[0][j] if len(outs) == 1 else np.concatenate([o[j] for o in outs])
+
+        C, Q, d, q = cat(0), cat(1), cat(2), cat(3)
+        if timings is not None:
+            st = [sum(o[4][j] for o in outs) / share for j in range(4)]
+            timings["warp"], timings["features"], timings["covariance"] = st[:3]
+            if templates is not None:
+                timings["distances"] = st[3]
+        d_eff = None if d is None else self.likelihood_distance(d, q)
+        return Observation(C, Q, d, q, d_eff)
+
+    def quadrant_descriptors(self, gray: np.ndarray, poses) -> tuple[np.ndarray, np.ndarray]:
+        """The whole region's and its four quadrants' descriptors at ``poses``, with or without the quadrant term.
+
+        Returns ``(C (n, 9, 9), Q (n, 4, 9, 9))``: what the tracker observes (``C``
+        equals :meth:`descriptors` when the model has quadrants) and the quadrant
+        descriptors a diagnosis compares over time (occlusion hides some
+        quadrants and not others).
+        """
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
+        if self.compiled:
+            return _kernels().warp_descriptors_fast(
+                gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize, True
+            )
+        P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
+        F = patch_features(P, gain_normalize=self.gain_normalize, quadrants=True)
+        return quadrant_covariances(F, self.eps)
+
+    def patches(self, gray: np.ndarray, poses) -> np.ndarray:
+        """The warped ``patch_size``² patches (without their border) at ``poses``, float32 ``(n, S, S)``."""
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
+        return warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())[:, 1:-1, 1:-1]
+
+    def template_scores(self, gray: np.ndarray, pose, templates) -> np.ndarray:
+        """``d_eff`` of many log-space templates at one pose, ``(m,)``: what each would be weighed by there.
+
+        One observation at ``pose``, then each template's distance to it (in
+        :data:`OBSERVE_CHUNK` batches) combined with that pose's quadrant term.
+        Equal to :meth:`likelihood_distances` with the pose repeated, without
+        observing it ``m`` times (the diagnosis asks this at the truth and the
+        estimate, for the whole template cloud).
+        """
+        pose = np.asarray(pose, dtype=np.float64).reshape(1, 4)
+        L = np.asarray(templates, dtype=np.float64).reshape(-1, N_FEATURES, N_FEATURES)
+        ob = self.observe(gray, pose)
+        C = ob.descriptors[0]
+        d = np.concatenate(
+            [self._template_distances(L[i : i + OBSERVE_CHUNK], C) for i in range(0, len(L), OBSERVE_CHUNK)]
+        ) if len(L) else np.zeros(0)
+        q = None
+        if self.quadrants:
+            q = np.broadcast_to(self._quadrant_distances(ob.quadrants), (len(L), 4))
+        return self.likelihood_distance(d, q)
+
+    def descriptors(self, gray: np.ndarray, poses, executor=None, threads: int = 1) -> np.ndarray:
+        """Descriptors ``(n, 9, 9)`` at ``poses`` of a prepared frame."""
+        return self.observe(gray, poses, executor=executor, threads=threads).descriptors
+
+    def likelihood_distances(self, gray: np.ndarray, poses, templates, executor=None, threads: int = 1):
+        """``d_eff`` at ``poses`` of a prepared frame for log-space templates (one per pose, or one), ``(n,)``.
+
+        What :class:`covviz.trackers.manifold.ManifoldTracker` weighs a
+        particle with that template at that pose by.
+        """
+        return self.observe(gray, poses, templates, executor=executor, threads=threads).likelihood_distances
+
+    def likelihood_distance(self, d: np.ndarray, q: np.ndarray | None) -> np.ndarray:
+        """``d_eff = sqrt(d² + quadrant_weight · quadrant_term(q))``, or ``d`` without quadrants."""
+        return d if q is None else np.sqrt(d * d + self.quadrant_weight * quadrant_term(q))
+
+    def log_likelihood(self, d_eff: np.ndarray) -> np.ndarray:
+        """``-d_eff² / 2σ²``, the log-likelihood up to a constant (:func:`covviz.particles.log_likelihood`)."""
+        return log_likelihood(d_eff, self.likelihood_sigma)
+
+
+def _kernels():
+    """:mod:`covviz.kernels`, imported on first use: commands that never observe (``report``,
+    ``events``, every ``--help``) do not pay for importing numba."""
+    from covviz import kernels
+
+    return kernels
+
+
+def _downsampled_shape(H: int, W: int, step: int) -> tuple[int, int]:
+    """``(h, w)`` of a frame downsampled by ``step`` (rounded, at least 1)."""
+    return max(1, round(H / step)), max(1, round(W / step))

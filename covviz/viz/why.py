@@ -1,0 +1,229 @@
+"""The views that explain a failure: evidence series, frame labels, zoom, likelihood slices, heatmaps.
+
+Everything here draws what :mod:`covviz.diagnosis` and :mod:`covviz.viz.diagnostics`
+computed; the logger (:mod:`covviz.viz.logger`) decides when. Static parts
+(series styles, axis labels, colour bars) are logged once per tracker by
+:func:`log_static`.
+
+Coordinates of the small 2-D "plots" (slices, heatmaps) are their own: each
+lives in its own Spatial2D view (see :mod:`covviz.viz.blueprint`).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import rerun as rr
+
+from covviz.diagnosis import FrameEvidence
+from covviz.features import FEATURE_NAMES
+from covviz.viz import paths as P
+from covviz.viz.diagnostics import LikelihoodSlices
+
+__all__ = [
+    "DIFF_RANGE",
+    "LABEL_STYLE",
+    "LOG_RANGE",
+    "SERIES",
+    "heatmap_image",
+    "log_evidence",
+    "log_heatmap",
+    "log_slices",
+    "log_static",
+    "log_zoom",
+    "zoom_image",
+]
+
+#: Evidence series on the "why off track" plot: name -> (label, line width, brightness of the tracker colour).
+SERIES = {
+    "best_truth": ("best d at the truth", 2.0, 1.0),
+    "best_est": ("best d at the estimate", 2.0, 0.55),
+    "d_truth": ("estimate's template at the truth", 1.0, 1.0),
+    "d_est": ("estimate's template at the estimate", 1.0, 0.55),
+}
+#: Frame labels as markers on that plot (only off-track frames): label -> (marker, colour).
+LABEL_STYLE = {
+    "model": ("Cross", (255, 80, 80)),
+    "search": ("Up", (90, 170, 255)),
+    "estimate": ("Diamond", (255, 200, 60)),
+}
+#: Colour scale of the template and observed heatmaps (log-space entries) ...
+LOG_RANGE = (-4.0, 3.0)
+#: ... and of their difference (diverging, 0 in the middle).
+DIFF_RANGE = (-1.5, 1.5)
+#: Cells of gap between the three heatmaps, and screen pixels per cell in the view's underlay.
+GAP = 2.0
+HEAT_CELL = 16
+#: Colour of the text of axis labels (a label is drawn in its point's colour).
+TEXT_COLOR = (200, 200, 200)
+#: Slices plot: x extent of each panel and the d_eff drawn at the bottom (y grows downwards).
+SLICE_WIDTH = 100.0
+SLICE_GAP = 30.0
+SLICE_D_MAX = 10.0
+SLICE_HEIGHT = 60.0
+
+
+def _shade(color, k: float) -> tuple:
+    return tuple(round(c * k) for c in color[:3])
+
+
+# --------------------------------------------------------------------------- #
+# static parts
+# --------------------------------------------------------------------------- #
+def log_static(rec: rr.RecordingStream, p: P.TrackerPaths, name: str, color, with_model: bool) -> None:
+    """Series styles, label markers, heatmap axes and colour bars, slice axes of one tracker."""
+    rec.log(p.why_series("reach"), rr.SeriesLines(colors=[_shade(color, 0.8)], names=[f"{name} particles' best IoU with truth"],
+                                                   widths=[1.0]), static=True)
+    if not with_model:
+        return
+    for key, (label, width, k) in SERIES.items():
+        rec.log(p.why_series(key), rr.SeriesLines(colors=[_shade(color, k)], names=[f"{name} {label}"], widths=[width]),
+                static=True)
+    for label, (marker, col) in LABEL_STYLE.items():
+        rec.log(p.why_label(label), rr.SeriesPoints(colors=[col], names=[f"{name} {label} failure"], markers=[marker],
+                                                    marker_sizes=[4.0]), static=True)
+    for key, label in (("gap", "target's gap to the cloud / on-track level"),
+                       ("margin", "background margin (>0: target nearer)"), ("stress", "MDS stress-1 (cloud)")):
+        rec.log(f"{p.cloud_health}/{key}", rr.SeriesLines(colors=[_shade(color, 0.6 if key != "gap" else 1.0)],
+                                                           names=[f"{name} {label}"], widths=[1.5]), static=True)
+    _log_heatmap_axes(rec, p)
+    _log_slice_axes(rec, p)
+
+
+def heatmap_underlay() -> tuple[np.ndarray, tuple[float, float]]:
+    """The static part of the heatmap view, drawn once: titles, feature names, colour bars and their ticks.
+
+    Text drawn into an image scales with the view (labels logged as points keep their screen size
+    and pile up on nine rows of small cells). Returns the RGB image and the pixel offset where
+    the per-frame heatmaps (:func:`heatmap_image`, one image pixel per cell) go, scaled by
+    :data:`HEAT_CELL`.
+    """
+    n = len(FEATURE_NAMES)
+    c, gap = HEAT_CELL, int(GAP * HEAT_CELL)
+    left, top = 78, 26
+    w_panels = 3 * n * c + 2 * gap
+    H, W = top + n * c + 50, left + w_panels + 12
+    img = np.full((H, W, 3), 14, np.uint8)
+    font, white = cv2.FONT_HERSHEY_SIMPLEX, (215, 215, 215)
+    for k, title in enumerate(("template logm(C)", "observed logm(C*)", "difference")):
+        x0 = left + k * (n * c + gap)
+        (tw, _), _ = cv2.getTextSize(title, font, 0.42, 1)
+        cv2.putText(img, title, (x0 + (n * c - tw) // 2, top - 9), font, 0.42, white, 1, cv2.LINE_AA)
+    for i, f in enumerate(FEATURE_NAMES):
+        (tw, th), _ = cv2.getTextSize(f, font, 0.38, 1)
+        cv2.putText(img, f, (left - 6 - tw, top + i * c + (c + th) // 2), font, 0.38, white, 1, cv2.LINE_AA)
+    y_bar = top + n * c + 8
+    w_log = 2 * n * c + gap
+    img[y_bar : y_bar + 8, left : left + w_log] = _viridis(np.linspace(0, 1, w_log))[None]
+    x_diff = left + 2 * (n * c + gap)
+    img[y_bar : y_bar + 8, x_diff : x_diff + n * c] = _diverging(np.linspace(-1, 1, n * c))[None]
+    for x, t in ((left, f"{LOG_RANGE[0]:g}"), (left + w_log, f"{LOG_RANGE[1]:g}"), (x_diff, f"{DIFF_RANGE[0]:g}"),
+                 (x_diff + n * c // 2, "0"), (x_diff + n * c, f"+{DIFF_RANGE[1]:g}")):
+        (tw, _), _ = cv2.getTextSize(t, font, 0.38, 1)
+        cv2.putText(img, t, (int(np.clip(x - tw // 2, 0, W - tw)), y_bar + 24), font, 0.38, white, 1, cv2.LINE_AA)
+    cv2.putText(img, "rows and columns: the 9 features, in this order", (left, H - 6), font, 0.36, (150, 150, 150), 1,
+                cv2.LINE_AA)
+    return img, (float(left), float(top))
+
+
+def _log_heatmap_axes(rec, p: P.TrackerPaths) -> None:
+    under, (x0, y0) = heatmap_underlay()
+    rec.log(f"{p.heatmap}/axes", rr.Image(under, color_model="RGB", draw_order=-10.0), static=True)
+    rec.log(f"{p.heatmap}/image", rr.Transform3D(translation=[x0, y0, 0.0], scale=[HEAT_CELL, HEAT_CELL, 1.0]),
+            static=True)
+
+
+def _log_slice_axes(rec, p: P.TrackerPaths) -> None:
+    x1 = SLICE_WIDTH + SLICE_GAP
+    axes = [
+        [(0, SLICE_HEIGHT), (SLICE_WIDTH, SLICE_HEIGHT)], [(0, 0), (0, SLICE_HEIGHT)],
+        [(x1, SLICE_HEIGHT), (x1 + SLICE_WIDTH, SLICE_HEIGHT)], [(x1, 0), (x1, SLICE_HEIGHT)],
+        [(SLICE_WIDTH / 2, 0), (SLICE_WIDTH / 2, SLICE_HEIGHT)], [(x1 + SLICE_WIDTH / 2, 0), (x1 + SLICE_WIDTH / 2, SLICE_HEIGHT)],
+    ]
+    rec.log(f"{p.slices}/axes", rr.LineStrips2D(axes, colors=[(110, 110, 110)], radii=[0.3], draw_order=1.0), static=True)
+    labels = [
+        ((SLICE_WIDTH / 2, SLICE_HEIGHT + 8), "scale x0.6 .. x1.67"),
+        ((x1 + SLICE_WIDTH / 2, SLICE_HEIGHT + 8), "rotation -20 .. +20 deg"),
+    ]
+    rec.log(f"{p.slices}/labels", rr.Points2D([q for q, _ in labels], labels=[t for _, t in labels], radii=[0.0],
+                                              colors=[TEXT_COLOR], show_labels=True), static=True)
+
+
+# --------------------------------------------------------------------------- #
+# per frame
+# --------------------------------------------------------------------------- #
+def log_evidence(rec: rr.RecordingStream, p: P.TrackerPaths, ev: FrameEvidence, with_model: bool) -> None:
+    """The per-frame evidence of the diagnosis: the likelihood at the truth and the estimate, reach, label."""
+    if np.isfinite(ev.reach):
+        rec.log(p.why_series("reach"), rr.Scalars(ev.reach))
+    if not with_model:
+        return
+    for key in SERIES:
+        v = getattr(ev, key)
+        if np.isfinite(v):
+            rec.log(p.why_series(key), rr.Scalars(float(v)))
+    if ev.label in LABEL_STYLE and np.isfinite(ev.best_truth):
+        rec.log(p.why_label(ev.label), rr.Scalars(float(ev.best_truth)))
+
+
+def zoom_image(patches: list[np.ndarray | None], gap: int = 2) -> np.ndarray:
+    """Grey patches (``[0, 1]`` floats, each ``(S, S)`` or None) side by side, uint8, with dark gaps."""
+    S = next((q.shape[0] for q in patches if q is not None), 32)
+    cols = []
+    for q in patches:
+        tile = np.zeros((S, S), np.uint8) if q is None else np.clip(np.asarray(q) * 255.0, 0, 255).astype(np.uint8)
+        cols += [tile, np.full((S, gap), 24, np.uint8)]
+    return np.concatenate(cols[:-1], axis=1)
+
+
+def log_zoom(rec: rr.RecordingStream, p: P.TrackerPaths, image: np.ndarray) -> None:
+    rec.log(f"{p.zoom}/patches", rr.Image(image, color_model="L"))
+
+
+def _viridis(v: np.ndarray) -> np.ndarray:
+    u = np.clip(np.nan_to_num(v), 0.0, 1.0)
+    return cv2.applyColorMap((u * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)[..., ::-1]
+
+
+def _diverging(v: np.ndarray) -> np.ndarray:
+    """-1 .. 1 -> blue .. light grey .. red."""
+    u = np.clip(np.nan_to_num(v), -1.0, 1.0)[..., None]
+    blue, mid, red = np.array([40, 90, 255.0]), np.array([225, 225, 225.0]), np.array([255, 60, 40.0])
+    out = np.where(u < 0, mid + (blue - mid) * (-u), mid + (red - mid) * u)
+    return out.astype(np.uint8)
+
+
+def heatmap_image(template_log: np.ndarray, observed_log: np.ndarray) -> np.ndarray:
+    """Template, observation and difference (log space) as one RGB image, 9 rows, fixed colour scales."""
+    lo, hi = LOG_RANGE
+    a = _viridis((template_log - lo) / (hi - lo))
+    b = _viridis((observed_log - lo) / (hi - lo))
+    c = _diverging((observed_log - template_log) / DIFF_RANGE[1])
+    g = np.zeros((template_log.shape[0], int(GAP), 3), np.uint8)
+    return np.concatenate([a, g, b, g, c], axis=1)
+
+
+def log_heatmap(rec: rr.RecordingStream, p: P.TrackerPaths, template_log, observed_log) -> None:
+    img = heatmap_image(np.asarray(template_log), np.asarray(observed_log))
+    rec.log(f"{p.heatmap}/image", rr.Image(img, color_model="RGB", draw_order=0.0, magnification_filter="Nearest"))
+
+
+def _slice_curve(x0: float, values: np.ndarray) -> np.ndarray:
+    x = x0 + np.linspace(0.0, SLICE_WIDTH, len(values))
+    y = SLICE_HEIGHT * (1.0 - np.clip(np.asarray(values, dtype=np.float64) / SLICE_D_MAX, 0.0, 1.0))
+    return np.stack([x, y], axis=1)
+
+
+def log_slices(
+    rec: rr.RecordingStream, p: P.TrackerPaths, at_estimate: LikelihoodSlices | None, at_truth: LikelihoodSlices | None,
+    color, truth_color,
+) -> None:
+    """Curves of ``d_eff`` along scale (left) and rotation (right), at the estimate and at the truth."""
+    x1 = SLICE_WIDTH + SLICE_GAP
+    for key, sl, col in (("estimate", at_estimate, color), ("truth", at_truth, truth_color)):
+        path = f"{p.slices}/{key}"
+        if sl is None:
+            rec.log(path, rr.Clear(recursive=False))
+            continue
+        strips = [_slice_curve(0.0, sl.d_scale), _slice_curve(x1, sl.d_angle)]
+        rec.log(path, rr.LineStrips2D(strips, colors=[col], radii=[0.6], labels=[key, key], draw_order=5.0))

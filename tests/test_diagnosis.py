@@ -1,0 +1,220 @@
+"""Tests of the drift diagnosis (covviz/diagnosis.py): labels, rules, suspects, scoring.
+
+The rules are checked on hand-made evidence (each rule alone, and the order in which they are
+tried); the whole pipeline on the synthetic failure scenarios is tested in test_scenarios.py.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from covviz import spd
+from covviz.diagnosis import (
+    CAUSES,
+    LABELS,
+    Diagnoser,
+    DiagnosisConfig,
+    FrameEvidence,
+    diagnose,
+    score_suspects,
+)
+from covviz.runner import run_many
+from covviz.sequences import SyntheticConfig, SyntheticSequence
+from covviz.trackers.base import IdentityTracker
+from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
+
+CFG = DiagnosisConfig()
+
+
+def look(rng, scale=0.02, base=None):
+    """A target's descriptor and quadrants near ``base`` (identity by default)."""
+    b = np.eye(9) if base is None else base
+    C = spd.exp_map(b, spd.sym(rng.standard_normal((9, 9))) * scale)
+    Q = np.stack([spd.exp_map(b, spd.sym(rng.standard_normal((9, 9))) * scale) for _ in range(4)])
+    return C, Q
+
+
+def calm_history(rng, n=20, **kw):
+    """``n`` frames on track: IoU 0.85, the target's look steady."""
+    out = []
+    for f in range(1, n + 1):
+        C, Q = look(rng)
+        fields = {"frame": f, "iou": 0.85, "centre_error": 0.05, "scale_ratio": 1.0, "truth_motion": 0.02, "nearest": 0.01,
+                      "reach": 0.95, "ess_frac": 0.3, "brightness": np.full(4, 0.5), "truth_C": C, "truth_Q": Q, "estimate_C": C,
+                      "best_truth": 1.0, "best_est": 1.0, "label": "ok"}
+        fields.update(kw)
+        out.append(FrameEvidence(**fields))
+    return out
+
+
+def frame(f, rng, base=None, **kw):
+    C, Q = look(rng, base=base)
+    fields = {"frame": f, "iou": 0.05, "centre_error": 1.2, "scale_ratio": 1.0, "truth_motion": 0.02, "nearest": 0.01, "reach": 0.9,
+                  "ess_frac": 0.3, "brightness": np.full(4, 0.5), "truth_C": C, "truth_Q": Q, "estimate_C": C, "best_truth": 3.0,
+                  "best_est": 2.0, "label": "model"}
+    fields.update(kw)
+    return FrameEvidence(**fields)
+
+
+# --------------------------------------------------------------------------- #
+# the rules, one at a time
+# --------------------------------------------------------------------------- #
+def test_fast_motion_is_a_jump_beyond_the_particles(rng):
+    h = calm_history(rng) + [frame(21, rng, truth_motion=1.4, nearest=1.1, label="search", best_truth=1.2)]
+    d = diagnose(h, lost_at=21, drift_began=21, cfg=CFG)
+    assert d.cause == "fast_motion" and d.evidence["truth_motion_max"] == pytest.approx(1.4)
+    assert d.frames == (18, 21) and d.baseline == (10, 17) and d.labels["search"] == 1
+    # The same jump with a particle right there is not a search failure of reach: no fast motion.
+    h2 = calm_history(rng) + [frame(21, rng, truth_motion=1.4, nearest=0.05)]
+    assert diagnose(h2, 21, 21, CFG).cause != "fast_motion"
+
+
+def test_scale_is_the_centre_held_and_the_size_wrong(rng):
+    h = calm_history(rng) + [frame(21, rng, scale_ratio=3.3, contain=0.95)]
+    d = diagnose(h, 21, 21, CFG)
+    assert d.cause == "scale" and d.evidence["containment"] == pytest.approx(0.95) and d.evidence["scale_frame"] == 21
+    # A box of the wrong size off the truth is not a scale failure.
+    h2 = calm_history(rng) + [frame(21, rng, scale_ratio=3.3, contain=0.2)]
+    assert diagnose(h2, 21, 21, CFG).cause != "scale"
+
+
+def test_illumination_is_a_strong_change_of_brightness(rng):
+    dark = np.array([0.5 / 6, 0.5 / 6, 0.5, 0.5])  # the top quadrants six times darker
+    h = calm_history(rng) + [frame(21, rng, brightness=dark)]
+    d = diagnose(h, 21, 21, CFG)
+    assert d.cause == "illumination" and d.evidence["light_log2_max"] == pytest.approx(np.log2(6), rel=1e-6)
+
+
+def test_occlusion_is_some_quadrants_changing_while_another_holds(rng):
+    h = calm_history(rng)
+    _C, Q = look(rng)
+    far = spd.exp_map(np.eye(9), 1.5 * np.eye(9))  # d = sqrt(9) * 1.5 = 4.5 from the baseline
+    Q = Q.copy()
+    Q[[1, 3]] = far
+    ev = frame(21, rng, truth_Q=Q, truth_C=far, estimate_C=far)  # the target's look changed too
+    d = diagnose(h + [ev], 21, 21, CFG)
+    assert d.cause == "occlusion" and d.evidence["partial_frame"] == 21
+    assert d.evidence["quadrant_change_min"] < CFG.quadrant_hold <= CFG.quadrant_jump < d.evidence["quadrant_change_max"]
+
+
+def test_occlusion_by_something_static_in_front(rng):
+    # The whole region changed, but into what stood at that place before the target came.
+    scene = spd.exp_map(np.eye(9), 1.2 * np.eye(9))
+    near_scene = spd.exp_map(scene, 0.05 * spd.sym(rng.standard_normal((9, 9))))
+    ev = frame(21, rng, truth_C=near_scene, truth_Q=np.stack([near_scene] * 4), estimate_C=np.eye(9) * 3.0,
+               scene_C=scene)
+    d = diagnose(calm_history(rng) + [ev], 21, 21, CFG)
+    assert d.cause == "occlusion" and d.evidence["scene_frame"] == 21 and "appearance" in d.also
+    assert "scene that stood there" in d.text
+
+
+def test_appearance_is_the_whole_target_changing(rng):
+    far = spd.exp_map(np.eye(9), 1.2 * np.eye(9))
+    ev = frame(21, rng, truth_C=far, truth_Q=np.stack([far] * 4), estimate_C=np.eye(9) * 3.0)
+    d = diagnose(calm_history(rng) + [ev], 21, 21, CFG)
+    assert d.cause == "appearance" and "occlusion" not in d.also
+
+
+def test_distractor_is_the_target_unchanged_and_a_look_alike_followed(rng):
+    # At the loss the target looks as before, and so does the region the tracker follows.
+    ev = frame(21, rng, best_truth=3.0, best_est=1.5)
+    d = diagnose(calm_history(rng) + [ev], 21, 21, CFG)
+    assert d.cause == "distractor" and d.evidence["truth_minus_estimate_best_d"] == pytest.approx(1.5)
+    # If the likelihood prefers the truth, it is not the look-alike that won.
+    ev2 = frame(21, rng, best_truth=1.0, best_est=2.5)
+    assert diagnose(calm_history(rng) + [ev2], 21, 21, CFG).cause != "distractor"
+
+
+def test_impoverishment_and_unknown(rng):
+    h = calm_history(rng)
+    h[-1] = FrameEvidence(**{**h[-1].__dict__, "ess_frac": 0.005})
+    h[-2] = FrameEvidence(**{**h[-2].__dict__, "ess_frac": 0.005})
+    ev = frame(21, rng, ess_frac=0.004, best_truth=1.0, best_est=2.0)
+    d = diagnose(h + [ev], 21, 19, CFG)
+    assert d.cause == "impoverishment" and d.evidence["frames_ess_low"] == 3
+    d2 = diagnose(calm_history(rng) + [frame(21, rng, best_truth=1.0, best_est=2.0)], 21, 21, CFG)
+    assert d2.cause == "unknown" and "no rule" in d2.text
+
+
+def test_rules_are_tried_in_the_documented_order(rng):
+    # A jump that also shrinks the box: fast motion first, scale listed as also held.
+    ev = frame(21, rng, truth_motion=1.4, nearest=1.1, scale_ratio=3.0, contain=0.9)
+    d = diagnose(calm_history(rng) + [ev], 21, 21, CFG)
+    assert (d.cause, d.also[:1]) == ("fast_motion", ("scale",))
+    assert list(CAUSES).index("fast_motion") < list(CAUSES).index("scale")
+
+
+def test_diagnosis_is_json_ready(rng):
+    d = diagnose(calm_history(rng) + [frame(21, rng)], 21, 21, CFG)
+    back = json.loads(json.dumps(d.as_dict()))
+    assert back["lost_at"] == 21 and back["cause"] == d.cause and set(back["labels"]) == set(LABELS[1:])
+
+
+# --------------------------------------------------------------------------- #
+# the observer
+# --------------------------------------------------------------------------- #
+def test_labels_of_a_frame():
+    dg = Diagnoser()
+    base = {"iou": 0.2, "best_truth": 2.0, "best_est": 1.0, "reach": 0.8}
+    assert dg._label({**base, "iou": 0.7}) == "ok"
+    assert dg._label(base) == "model"  # the truth scores worse than the estimate
+    assert dg._label({**base, "best_truth": 0.5, "reach": 0.2}) == "search"  # better, never reached
+    assert dg._label({**base, "best_truth": 0.5, "reach": 0.8}) == "estimate"  # better, reached, yet elsewhere
+
+
+def test_diagnoser_on_a_tracker_without_a_model_uses_a_probe():
+    seq = SyntheticSequence(SyntheticConfig(n_frames=6))
+    dg = Diagnoser()
+    run_many([IdentityTracker()], seq, [dg])
+    s = dg.states[0]
+    ev = s.latest
+    assert s.model is None and s.probe is not None
+    assert ev.truth_C.shape == (9, 9) and ev.label == "" and np.isnan(ev.best_truth)
+    assert ev.frame == 6 and 0 <= ev.iou <= 1
+    json.dumps(dg.report(0))
+
+
+def test_diagnoser_scores_the_truth_through_the_trackers_own_model():
+    seq = SyntheticSequence(SyntheticConfig(n_frames=5))
+    tr = ManifoldTracker(ManifoldConfig(n_particles=40), rng=1)
+    dg = Diagnoser(DiagnosisConfig(cloud_templates=1000))  # every template of the cloud
+    run_many([tr], seq, [dg])
+    ev, rec = dg.states[0].latest, tr.last_record
+    assert dg.states[0].model is tr.model and ev.label in LABELS
+    m = tr.model
+    g = m.prepare(seq.frame(4).image)
+    from covviz.observation import box_to_pose
+
+    at_truth = m.likelihood_distances(g, np.repeat(box_to_pose(seq.frame(4).gt, m.base_wh)[None], 40, 0), rec.templates)
+    assert ev.best_truth == pytest.approx(at_truth.min(), rel=1e-9)
+    assert ev.d_est == pytest.approx(float(m.likelihood_distances(g, rec.pose, rec.estimate_template)[0]), rel=1e-9)
+
+
+def test_suspects_without_ground_truth(rng):
+    dg = Diagnoser()
+    seq = SyntheticSequence(SyntheticConfig(n_frames=3))
+    dg.on_start(seq, [IdentityTracker()])
+    s = dg.states[0]
+    raised = []
+    for f in range(1, 40):
+        ess = 0.5 if f < 30 else 0.005
+        d_min = 1.0 + 0.01 * np.sin(f) if f != 35 else 5.0
+        ev = FrameEvidence(frame=f, ess_frac=ess, d_min=d_min, mode_mass=0.4 if f in (20, 21) else 0.0,
+                           scale=1.0 if f < 25 else 2.0)
+        raised += [(sp.frame, sp.kind) for sp in dg._suspects(s, ev, None)]
+    assert (32, "collapse") in raised  # the third frame in a row below SUSPECT_ESS
+    assert (21, "second_mode") in raised  # two frames in a row
+    assert (25, "scale_runaway") in raised
+    assert (35, "distance_jump") in raised
+    assert len(raised) == 4  # each raised once, not again while it holds
+
+
+def test_score_suspects():
+    sus = [{"frame": 5}, {"frame": 48}, {"frame": 90}]
+    res = score_suspects(sus, [(50, 60), (100, 120)])
+    # frame 48 is in [50 - 10, 60 + 5]; frame 90 is in [100 - 10, 120 + 5]; frame 5 in none
+    assert res == {"true_positives": 2, "suspects": 3, "losses": 2, "losses_found": 2}
+    assert score_suspects([], [(50, 60)])["losses_found"] == 0
