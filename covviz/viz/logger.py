@@ -36,6 +36,7 @@ from covviz.embedding import AlignedMDS, distance_matrix, stress1
 from covviz.features import pose_corners
 from covviz.metrics import center_error, evaluate, iou, nothing_to_score
 from covviz.observation import ObservationModel, box_to_pose
+from covviz.particles import effective_sample_size
 from covviz.records import FrameRecord, frame_number
 from covviz.spd import logm
 from covviz.threads import limit_threads
@@ -531,7 +532,7 @@ class RerunLogger:
                     draw_order=25.0,
                 ),
             )
-            ess = float(record.ess) if np.isfinite(record.ess) else float(1.0 / np.sum(w * w))
+            ess = float(record.ess) if np.isfinite(record.ess) else effective_sample_size(lw)
             rec.log(p.ess, rr.Scalars(ess / n))
             rec.log(p.max_weight, rr.Scalars(float(w.max())))
             if record.resampled:
