@@ -126,10 +126,10 @@ class LoggerConfig:
 
     mds_every: int = 10
     likelihood_every: int | None = None
-    spread_every: int = 1
+    spread_every: int = 3
     spread_templates: int = 32
     top_k: int = 10
-    mds_max_templates: int = 48
+    mds_max_templates: int = 32
     mds_method: str = "classical"
     n_background: int = 16
     likelihood_grid: int = 17
@@ -186,7 +186,7 @@ class _TrackerState:
         self.model: ObservationModel | None = None  # from the tracker's init record
         self.mds = AlignedMDS(cfg.mds_method)
         # SMACOF for the cloud alone: classical MDS would flatten it (see covviz.embedding.embed).
-        self.mds_zoom = AlignedMDS("smacof", max_iter=30)
+        self.mds_zoom = AlignedMDS("smacof", max_iter=20)
         self.spread_mean: np.ndarray | None = None
         self.index = index
         self.initial_template: np.ndarray | None = None
