@@ -37,6 +37,7 @@ import numpy as np
 from covviz.events import EVENT_DEFAULTS, Event, EventConfig, EventDetector
 from covviz.metrics import iou
 from covviz.observation import ObservationModel, box_to_pose
+from covviz.particles import effective_sample_size
 from covviz.spd import distance_jbld, distance_riemann, logdet, mean_logeuclid
 from covviz.trackers.base import to_gray
 
@@ -701,7 +702,8 @@ class Diagnoser:
         w = None if lw is None else np.exp(np.asarray(lw, dtype=np.float64))
         if w is not None and len(w):
             n = len(w)
-            kw["ess_frac"] = float(rec.ess) / n if np.isfinite(rec.ess) else float(1 / np.sum(w * w)) / n
+            ess = float(rec.ess) if np.isfinite(rec.ess) else effective_sample_size(lw)
+            kw["ess_frac"] = ess / n
             kw["max_weight"] = float(w.max())
             idx = rec.resample_indices
             kw["survivors"] = len(np.unique(idx)) / len(idx) if (rec.resampled and idx is not None and len(idx)) else 1.0

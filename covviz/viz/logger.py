@@ -36,6 +36,7 @@ from covviz.embedding import AlignedMDS, distance_matrix, stress1
 from covviz.features import pose_corners
 from covviz.metrics import center_error, evaluate, iou, nothing_to_score
 from covviz.observation import ObservationModel, box_to_pose
+from covviz.particles import effective_sample_size
 from covviz.records import FrameRecord, frame_number
 from covviz.spd import logm
 from covviz.threads import limit_threads
@@ -125,10 +126,10 @@ class LoggerConfig:
 
     mds_every: int = 10
     likelihood_every: int | None = None
-    spread_every: int = 1
+    spread_every: int = 3
     spread_templates: int = 32
     top_k: int = 10
-    mds_max_templates: int = 48
+    mds_max_templates: int = 32
     mds_method: str = "classical"
     n_background: int = 16
     likelihood_grid: int = 17
@@ -185,7 +186,7 @@ class _TrackerState:
         self.model: ObservationModel | None = None  # from the tracker's init record
         self.mds = AlignedMDS(cfg.mds_method)
         # SMACOF for the cloud alone: classical MDS would flatten it (see covviz.embedding.embed).
-        self.mds_zoom = AlignedMDS("smacof", max_iter=30)
+        self.mds_zoom = AlignedMDS("smacof", max_iter=20)
         self.spread_mean: np.ndarray | None = None
         self.index = index
         self.initial_template: np.ndarray | None = None
@@ -531,7 +532,7 @@ class RerunLogger:
                     draw_order=25.0,
                 ),
             )
-            ess = float(record.ess) if np.isfinite(record.ess) else float(1.0 / np.sum(w * w))
+            ess = float(record.ess) if np.isfinite(record.ess) else effective_sample_size(lw)
             rec.log(p.ess, rr.Scalars(ess / n))
             rec.log(p.max_weight, rr.Scalars(float(w.max())))
             if record.resampled:
