@@ -398,6 +398,8 @@ def _warm_kernels(trackers) -> None:
     from covviz import kernels
 
     if kernels.JIT_ENABLED and any(getattr(getattr(t, "config", None), "jit", False) for t in trackers):
+        if kernels.kernels_cached():
+            return  # each kernel loads from numba's cache at its first call (only those the run uses)
         took = kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
         log.debug("kernels ready in %.1f s", took)
 
