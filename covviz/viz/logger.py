@@ -463,6 +463,8 @@ class RerunLogger:
         dense = i <= s.dense_until
         self._log_diagnostics(s, frame, record, box, gt, est_t, prepared_cache, problems, dense)
         self._log_events(s, frame, found)
+        if i <= s.dense_until and i not in s.drawn:  # an event on this very frame: its views too
+            self._log_diagnostics(s, frame, record, box, gt, est_t, prepared_cache, problems, dense=True)
         if problems:
             self._warn(s, problems)
 
