@@ -204,6 +204,25 @@ def test_the_core_and_the_cli_load_no_cluster_extra():
     assert p.returncode == 0, f"the core imported {p.stdout.strip()}\n{p.stderr[-2000:]}"
 
 
+def test_numba_loads_only_with_the_kernels():
+    """numba (and its ~1 s of import) is pulled in by covviz.kernels alone, at the first compiled call:
+    every other module, and the CLI's --help, load without it."""
+    mods = [m for m in core_modules() if m != "covviz.kernels"]
+    assert "covviz.observation" in mods and "covviz.trackers.manifold" in mods
+    code = (
+        "import importlib, sys\n"
+        f"for m in {mods!r}:\n"
+        "    importlib.import_module(m)\n"
+        "    if 'numba' in sys.modules:\n"
+        "        print(m); sys.exit(1)\n"
+        "import covviz.cli\n"
+        "covviz.cli.build_parser()\n"
+        "sys.exit(1 if 'numba' in sys.modules else 0)\n"
+    )
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    assert p.returncode == 0, f"importing {p.stdout.strip() or 'the CLI'} loaded numba\n{p.stderr[-2000:]}"
+
+
 # --------------------------------------------------------------------------- #
 # import cycles
 # --------------------------------------------------------------------------- #
