@@ -1,8 +1,10 @@
 """What the Rerun recorder costs: tracking time with and without it, recording size, memory.
 
 Runs the manifold tracker on the synthetic default (320×240) at 600 particles,
-alternately without observers ("untraced") and with :class:`RerunLogger`
-writing an ``.rrd`` ("traced", MDS and likelihood map every 10 frames), with
+alternately as ``covviz track --no-save`` runs it ("untraced": the drift
+diagnosis on a background thread; ``--bare``: no observer at all) and with
+:class:`RerunLogger` writing an ``.rrd`` ("traced", which drives the same
+diagnosis, MDS and likelihood map every 10 frames), with
 the same seed, so both runs do the same tracking work (the script reports how
 far the boxes of the two runs differ: the logger never touches the tracker,
 but float32 results depend on heap alignment in their last bits, which any
@@ -43,6 +45,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 
+from covviz.diagnosis import Diagnoser
 from covviz.runner import BackgroundObserver, run
 from covviz.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
@@ -108,9 +111,11 @@ class TimedObserver:
 
 
 def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds_every: int, extra=(),
-            background: bool = True):
+            background: bool = True, bare: bool = False):
     tracker = TimedTracker(ManifoldTracker(ManifoldConfig(n_particles=particles), rng=seed))
     observers = list(extra)
+    if rrd is None and not bare:  # as `covviz track --no-save`: the diagnosis on its own thread
+        observers.append(BackgroundObserver(Diagnoser()))
     logger = None
     if rrd is not None:
         stream = new_recording()
@@ -147,6 +152,9 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--foreground", action="store_true",
                     help="log on the tracking thread (the default, like covviz track, is a background thread)")
+    ap.add_argument("--bare", action="store_true",
+                    help="untraced runs without the drift diagnosis (tracking alone) instead of as covviz track "
+                         "--no-save runs")
     ap.add_argument("--json", type=Path, help="also write the numbers here")
     args = ap.parse_args(argv)
     if args.blas_threads:
@@ -187,7 +195,7 @@ def main(argv=None) -> int:
 
     untraced, traced = [], []
     for k in range(args.repeats):
-        u = one_run(seq, args.frames, args.particles, args.seed, None, args.mds_every)
+        u = one_run(seq, args.frames, args.particles, args.seed, None, args.mds_every, bare=args.bare)
         t = one_run(seq, args.frames, args.particles, args.seed, tmp / f"t{k}.rrd", args.mds_every,
                     background=not args.foreground)
         # The logger never touches the tracker's state or random generator, but any observer that

@@ -1,11 +1,14 @@
 """Speed of the trackers' update(), side by side in one process.
 
-Prints, for the manifold tracker at 300 / 600 / 1000 particles, with its
-quadrant term (the default) and without it (the paper's likelihood), the mean
-per-frame time of ``update()`` broken down by stage (propagate, warp, features,
-covariance, distances, weights, resample), its frames per second, and the ratio
-to OpenCV's CSRT (and the IPCA baseline, when available) run on the same
-frames in the same process. Frames are decoded once, before timing.
+Prints the machine (CPU model, cores, load), then, for the manifold tracker at
+300 / 600 / 1000 particles, with its quadrant term (the default) and without it
+(the paper's likelihood), with the compiled kernels and/or the numpy path, the
+mean per-frame time of ``update()`` broken down by stage (propagate, warp,
+features, covariance, distances, weights, estimate, resample), its frames per
+second, and the ratio to OpenCV's CSRT (and the IPCA baseline) run on the same
+frames in the same process (frames decoded once, before timing). Last, the
+whole ``covviz track --no-save`` process of manifold and CSRT, alternating:
+the rate a user sees, start to end.
 
 Usage::
 
@@ -15,6 +18,7 @@ Usage::
     python benchmarks/speed.py --quadrants on         # only the default tracker
     python benchmarks/speed.py --jit both             # with and without the compiled kernels
     python benchmarks/speed.py --quadrants on --terms both   # the default with and without issue 14's terms
+    python benchmarks/speed.py ../shared/sequences/Car4 --frames 199 --particles 600 --whole 5
 
 These machines are noisy: compare ratios measured side by side in one run, and
 use ``--repeat`` to take the best of several passes.
@@ -94,7 +98,11 @@ def main(argv=None) -> int:
     ap.add_argument("--terms", choices=("both", "on", "off"), default="on",
                     help="time the tracker with the terms added by issue 14 (on: the derivative normalisation "
                          "and the colour term, as configured by default), without them (off: "
-                         "manifold.NEW_TERMS_OFF) or both, side by side (default on)")
+                         "manifold.NEW_TERMS_OFF) or both, side by side (default on); --quadrants off --terms "
+                         "off is the paper's likelihood")
+    ap.add_argument("--whole", type=int, default=3, metavar="K",
+                    help="also time the whole 'covviz track SEQ --max-frames N --no-save' process of manifold and "
+                         "csrt, K times each, alternating (0: skip; default 3)")
     ap.add_argument("--jit", choices=("on", "off", "both"), default="on",
                     help="time the tracker with the compiled kernels (on, the default when numba is installed), "
                          "with the numpy path (off) or both, side by side (default on)")
@@ -143,25 +151,49 @@ def main(argv=None) -> int:
     print(header)
     variants = {"both": (True, False), "on": (True,), "off": (False,)}[args.quadrants]
     term_variants = {"both": (False, True), "on": (True,), "off": (False,)}[args.terms]
-    saved = kernels.JIT_ENABLED
-    try:
-        for k in (int(v) for v in args.particles.split(",")):
-            for quad in variants:
-                for terms in term_variants:
-                    for jit in jits:
-                        kernels.JIT_ENABLED = jit
-                        cfg = ManifoldConfig(n_particles=k, threads=args.observe_threads, quadrants=quad,
-                                             **({} if terms else NEW_TERMS_OFF))
-                        dt, st = time_tracker(lambda cfg=cfg: ManifoldTracker(cfg, rng=0), frames, box, args.repeat)
-                        _row(k, quad, terms, jit, dt, st, stage_names, peers)
-    finally:
-        kernels.JIT_ENABLED = saved
+    for k in (int(v) for v in args.particles.split(",")):
+        for quad in variants:
+            for terms in term_variants:
+                for jit in jits:
+                    cfg = ManifoldConfig(n_particles=k, threads=args.observe_threads, jit=jit,
+                                         **{**({} if terms else NEW_TERMS_OFF), "quadrants": quad})
+                    dt, st = time_tracker(lambda cfg=cfg: ManifoldTracker(cfg, rng=0), frames, box, args.repeat)
+                    _row(k, quad, terms, jit, dt, st, stage_names, peers)
     for p, pt in peers.items():
         print(f"{p}: {1e3 * pt:.2f} ms/frame, {1 / pt:.1f} fps")
+    if args.whole:
+        whole_process(args.sequence, n, args.whole)
     print("\n'x csrt' = CSRT's time / manifold's time on the same frames (>1: manifold is faster).")
     if True in jits:
         print("jit on: 'features' is the fused warp+features+covariance kernel (warp and covariance read 0).")
     return 0
+
+
+def whole_process(sequence, n_frames: int, repeat: int) -> None:
+    """Frames per second of ``covviz track`` as a user runs it, process start to end, manifold vs CSRT.
+
+    Each run is a fresh process (imports, kernels from numba's cache, decoding, the drift diagnosis,
+    results written); the two alternate, ``repeat`` times each, and the ratio is taken pair by pair.
+    """
+    import subprocess
+    import tempfile
+
+    cmd = [sys.executable, "-m", "covviz.cli", "track", *([] if sequence is None else [str(sequence)]),
+           "--max-frames", str(n_frames), "--no-save", "--no-progress"]
+    walls: dict[str, list[float]] = {"manifold": [], "csrt": []}
+    with tempfile.TemporaryDirectory() as out:
+        for _ in range(repeat):
+            for name, w in walls.items():
+                t0 = time.perf_counter()
+                subprocess.run([*cmd, "--trackers", name, "--out", out], check=True, capture_output=True)
+                w.append(time.perf_counter() - t0)
+    ratios = [c / m for m, c in zip(walls["manifold"], walls["csrt"])]
+    print(f"\nwhole process, 'covviz track ... --max-frames {n_frames} --no-save' ({repeat} runs each, alternating):")
+    for name, w in walls.items():
+        print(f"  {name:>8}: {n_frames / np.median(w):6.1f} frames/s (median wall {np.median(w):.2f} s; "
+              f"{', '.join(f'{v:.2f}' for v in w)})")
+    print(f"  manifold's rate / csrt's, pair by pair: {', '.join(f'{r:.2f}' for r in ratios)} "
+          f"(median {np.median(ratios):.2f})")
 
 
 def _row(k, quad, terms, jit, dt, st, stage_names, peers) -> None:

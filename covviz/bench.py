@@ -3,7 +3,8 @@
 The flow is got-10k's (run → results on disk → report)::
 
     ROOT/<sequence>/...        OTB (img/ + groundtruth_rect.txt) or VOT (groundtruth.txt) folders
-        │  one job per (sequence, tracker, seed), longest first, J worker processes
+        │  one job per (sequence, tracker, seed), longest first, each in a fresh process
+        │  (covviz.jobs), J at a time here or on a Dask cluster (covviz.cluster); results come back
         ▼
     OUT/<sequence>/<tracker>_s<seed>.txt|.json   (covviz.results; deterministic trackers: <tracker>.txt|.json)
     OUT/bench_manifest.json                      what this folder holds: root, trackers, seeds, ...
@@ -20,14 +21,20 @@ Seeds
     trackers run once (seed ``None`` in their results).
 
 Processes
-    Every job runs in a fresh worker process (J at a time, each with
-    ``cpu_count // J`` OpenCV/BLAS threads): OpenCV's MIL and TLD keep random
-    state between runs in one process, so this is what makes every result
-    independent of job order. Ctrl-C stops the workers; finished results stay.
+    Every job runs in a fresh process (:mod:`covviz.jobs`): OpenCV's MIL and TLD
+    keep random state between runs in one process, so this is what makes every
+    result independent of job order and placement. Locally (the default),
+    J jobs at a time, each with ``cpu_count // J`` OpenCV/BLAS threads; on a
+    Dask cluster (``cluster=``, :mod:`covviz.cluster`), one job per worker
+    thread, each with one. A job whose process dies (killed by a signal, e.g.
+    the OOM killer, or lost with its worker) is run again up to ``retries``
+    times; after that only that job fails, the others run. Ctrl-C ends the
+    running jobs within seconds; finished results stay.
 
 Resuming
-    Every job writes its result atomically (:func:`covviz.results.save_result`)
-    as soon as it finishes, in the worker. A job whose result already exists,
+    Every job returns its boxes and metrics to this process, which writes its
+    result atomically (:func:`covviz.results.save_result`) as soon as it
+    finishes: workers need no access to the results folder. A job whose result already exists,
     loads, covers the expected frames and was made with the same tracker config is
     skipped, so re-running an interrupted bench runs only what is missing. Running
     again with more trackers or seeds adds them to the same folder and report.
@@ -36,7 +43,9 @@ The manifest
     ``bench_manifest.json`` names the run: ``root``, ``max_frames``,
     ``particles`` and the covviz version must match for a folder to be reused;
     otherwise the bench stops with a one-line error (use ``--force`` to re-run
-    everything into that folder, or a new ``--out``).
+    everything into that folder, or a new ``--out``). One bench at a time
+    writes into a folder (a lock on ``OUT/.covviz-bench.lock``); a second one
+    stops with a one-line error.
 """
 
 from __future__ import annotations
@@ -45,26 +54,28 @@ import contextlib
 import json
 import logging
 import os
-import signal
 import sys
-import time
+from collections import deque
+from collections.abc import Iterator
 from collections.abc import Sequence as Seq
-from dataclasses import dataclass
 from pathlib import Path
 
 from covviz import __version__
 from covviz.errors import InputError
-from covviz.records import frame_number
+from covviz.jobs import Job, JobError, JobOutput, JobProcess, JobProcessDied, Outcome, sigint_deferred
 from covviz.results import MANIFEST_FORMAT, MANIFEST_NAME, read_manifest, write_manifest
-from covviz.threads import limit_threads
 
 __all__ = [
     "BenchError",
     "Job",
+    "LocalExecutor",
     "bench",
     "find_sequences",
+    "lock_results_folder",
+    "make_executor",
     "plan_jobs",
-    "run_job",
+    "read_sequences",
+    "save_output",
 ]
 
 log = logging.getLogger("covviz.bench")
@@ -84,12 +95,18 @@ def _is_sequence_dir(p: Path) -> bool:
     return (p / "img").is_dir() or (p / "groundtruth.txt").is_file()
 
 
-def find_sequences(root: str | Path) -> list[Path]:
+def _is_results_dir(p: Path) -> bool:
+    """A bench's results folder (its report's ``img/`` would make it look like an OTB sequence)."""
+    return (p / MANIFEST_NAME).is_file()
+
+
+def find_sequences(root: str | Path, exclude: Seq[str | Path] = ()) -> list[Path]:
     """Every sequence folder under ``root`` (or ``[root]`` if it is one), sorted by name.
 
     A sequence folder holds ``img/`` (OTB) or ``groundtruth.txt`` (VOT). Folders
     are searched recursively (following symlinks), but not inside a sequence;
-    hidden folders are skipped.
+    hidden folders, bench results folders (with a ``bench_manifest.json``) and
+    the folders in ``exclude`` (a bench's ``--out`` inside ``root``) are skipped.
 
     Raises
     ------
@@ -103,11 +120,12 @@ def find_sequences(root: str | Path) -> list[Path]:
     if _is_sequence_dir(root):
         return [root]
     found: list[Path] = []
-    seen: set[str] = set()  # real paths: symlinked folders are followed, loops are not
+    seen: set[str] = {os.path.realpath(p) for p in exclude}  # real paths: symlinks followed, loops not
+    seen.discard(os.path.realpath(root))
     for dirpath, dirnames, _ in os.walk(root, followlinks=True):
         d = Path(dirpath)
         real = os.path.realpath(d)
-        if real in seen:
+        if real in seen or (d != root and _is_results_dir(d)):
             dirnames[:] = []
             continue
         seen.add(real)
@@ -133,21 +151,28 @@ def find_sequences(root: str | Path) -> list[Path]:
     return sorted(found, key=lambda p: p.name.lower())
 
 
-@dataclass(frozen=True)
-class Job:
-    """One tracker run: ``tracker`` with ``seed`` on the sequence at ``path``."""
+def read_sequences(root: str | Path, exclude: Seq[str | Path] = ()) -> dict[str, tuple[str, int]]:
+    """name -> (path, number of frames) of every sequence under ``root`` (:func:`find_sequences`).
 
-    sequence: str
-    path: str
-    n_frames: int
-    tracker: str
-    seed: int | None
-    particles: int | None
-    max_frames: int | None
+    Fails early, with the sequence's name, on a folder that cannot be read.
 
-    @property
-    def label(self) -> str:
-        return f"{self.sequence}/{self.tracker}" + ("" if self.seed is None else f"/s{self.seed}")
+    Raises
+    ------
+    BenchError
+    """
+    from covviz.sequences import SequenceError, open_sequence
+
+    sequences: dict[str, tuple[str, int]] = {}
+    for p in find_sequences(root, exclude=exclude):
+        try:
+            seq = open_sequence(p)
+            if len(seq) < 2:
+                raise SequenceError(f"{p}: a sequence needs at least 2 frames, found {len(seq)}")
+            seq.init_box  # noqa: B018 - raises if the first frame has no ground truth
+        except SequenceError as exc:
+            raise BenchError(f"sequence {p.name}: {exc}") from None
+        sequences[seq.name] = (str(p), len(seq))
+    return sequences
 
 
 def plan_jobs(
@@ -156,6 +181,7 @@ def plan_jobs(
     seeds: int,
     particles: int | None = None,
     max_frames: int | None = None,
+    config: dict | None = None,
 ) -> list[Job]:
     """Every (sequence, tracker, seed) job, longest first.
 
@@ -166,6 +192,8 @@ def plan_jobs(
     trackers : sequence of str
     seeds : int
         Seeds ``0 … seeds-1`` for the stochastic trackers; one run (seed None) for the others.
+    config : dict, optional
+        A ManifoldConfig's ``as_dict()`` for the trackers of :data:`covviz.trackers.CONFIGURABLE`.
 
     Returns
     -------
@@ -173,14 +201,15 @@ def plan_jobs(
     among equals (they are the slow ones), then by name: the longest jobs start
     first so that the last to finish are short.
     """
-    from covviz.trackers import STOCHASTIC
+    from covviz.trackers import CONFIGURABLE, STOCHASTIC
 
+    text = None if config is None else _canonical(config)
     jobs = []
     for name, (path, n) in sequences.items():
         n_run = n if max_frames is None else min(n, max_frames)
         for tr in trackers:
             for s in range(seeds) if tr in STOCHASTIC else [None]:
-                jobs.append(Job(name, path, n_run, tr, s, particles, max_frames))
+                jobs.append(Job(name, path, n_run, tr, s, particles, max_frames, text if tr in CONFIGURABLE else None))
     return sorted(
         jobs, key=lambda j: (-j.n_frames, j.tracker not in STOCHASTIC, j.sequence, j.tracker, j.seed or 0)
     )
@@ -198,14 +227,15 @@ def _canonical(obj) -> str:
     return json.dumps(obj, sort_keys=True, allow_nan=True)
 
 
-def tracker_configs(trackers: Seq[str], particles: int | None) -> dict[str, dict]:
+def tracker_configs(trackers: Seq[str], particles: int | None, config: dict | None = None) -> dict[str, dict]:
     """The config each tracker would run with (builds each once; no frame is read)."""
-    from covviz.trackers import make_tracker
+    from covviz.trackers import CONFIGURABLE
 
     out = {}
     for name in trackers:
+        job = Job("", "", 0, name, 0, particles, None, _canonical(config) if config and name in CONFIGURABLE else None)
         try:
-            tr = make_tracker(name, rng=0, n_particles=particles)
+            tr = job.make_tracker()
         except ValueError:
             raise
         except Exception as exc:  # noqa: BLE001 - e.g. a tracker module that does not import
@@ -215,71 +245,123 @@ def tracker_configs(trackers: Seq[str], particles: int | None) -> dict[str, dict
 
 
 # --------------------------------------------------------------------------- #
-# the worker
+# running jobs: the local executor (covviz.cluster has the Dask one)
 # --------------------------------------------------------------------------- #
-class _FailureCounter:
-    """Observer: numbers (1-based) of the frames whose record says ``extras["failed"]`` (OpenCV trackers)."""
-
-    def __init__(self) -> None:
-        self.failed: list[int] = []
-
-    def on_frame(self, frame, records) -> None:
-        if records and records[0].extras.get("failed"):
-            self.failed.append(frame_number(frame.index))
-
-
-def _init_worker() -> None:
-    """Worker start-up: leave Ctrl-C to the parent."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def run_job(job: Job, out_dir: str, threads: int | None = None, jobs: int = 1) -> dict:
-    """Run one job and write its result (atomically); return a short summary.
-
-    ``threads`` OpenCV/BLAS threads while it runs (None: as they are).
-
-    The JSON gets, besides the standard result fields, the OTB curves (so the
-    report can plot them without the sequence), the thresholds they use, the
-    frames on which the tracker reported a failure, and the bench settings.
-    """
-    from covviz.diagnosis import Diagnoser
-    from covviz.metrics import (
-        IOU_THRESHOLDS,
-        ON_TRACK_GAMMA,
-        PRECISION_AT,
-        PRECISION_THRESHOLDS,
-        precision_curve,
-        success_curve,
-    )
+def save_output(output: JobOutput, out_dir: str | Path) -> dict:
+    """Write a job's result (atomically, Ctrl-C held back for the rename); return its JSON dict."""
     from covviz.results import save_result
-    from covviz.runner import BackgroundObserver, run
-    from covviz.sequences import open_sequence
-    from covviz.trackers import make_tracker
 
-    seq = open_sequence(job.path)
-    tracker = make_tracker(job.tracker, seed=job.seed, n_particles=job.particles)
-    failures = _FailureCounter()
-    diagnoser = Diagnoser()
-    t0 = time.perf_counter()
-    with limit_threads(threads), contextlib.closing(tracker) if hasattr(tracker, "close") else contextlib.nullcontext():
-        # The drift diagnosis on its own thread, overlapping the tracker (it never changes a box).
-        res = run(tracker, seq, [failures, BackgroundObserver(diagnoser)], max_frames=job.max_frames, seed=job.seed)
-    wall = time.perf_counter() - t0
-    extra = {
-        "curves": {
-            "iou_thresholds": IOU_THRESHOLDS,
-            "success": success_curve(res.boxes, res.groundtruth),
-            "precision_thresholds": PRECISION_THRESHOLDS,
-            "precision": precision_curve(res.boxes, res.groundtruth),
-        },
-        "thresholds": {"precision_at": PRECISION_AT, "on_track_gamma": ON_TRACK_GAMMA},
-        "failed_frames": failures.failed,
-        "diagnosis": diagnoser.report(0),
-        "diagnosis_config": diagnoser.config.as_dict(),
-        "bench": {"jobs": jobs, "threads": threads, "wall_seconds": round(wall, 3), "path": job.path},
-    }
-    doc = save_result(res, out_dir, extra)
-    return {"label": job.label, "fps": doc["fps"], "auc": doc["metrics"].get("success_auc"), "wall": wall}
+    with sigint_deferred():
+        return save_result(output.result, out_dir, output.extra)
+
+
+class LocalExecutor:
+    """``slots`` jobs at a time on this machine, each in a fresh process (:class:`covviz.jobs.JobProcess`).
+
+    Each job gets ``max(1, cpu_count // slots)`` OpenCV/BLAS threads. A job whose
+    process dies (a signal: the OOM killer, a kill by hand) is run again up to
+    ``retries`` times, then reported as failed; the other jobs are not affected.
+    """
+
+    def __init__(self, slots: int = 1, retries: int = 1):
+        self.slots = int(slots)
+        self.threads = max(1, (os.cpu_count() or 1) // self.slots)
+        self.retries = int(retries)
+        self.name = f"local:{self.slots}"
+        self.events: list[str] = []
+
+    def run(self, jobs: list[Job]) -> Iterator[Outcome]:
+        import select
+
+        queue = deque((job, 1) for job in jobs)
+        running: dict[JobProcess, int] = {}  # process -> attempt
+        try:
+            while queue or running:
+                while queue and len(running) < self.slots:
+                    job, attempt = queue.popleft()
+                    running[JobProcess(job, self.threads, self.name, self.slots)] = attempt
+                ready = select.select(list(running), [], [], 1.0)[0]
+                for proc in sorted(ready, key=lambda p: p.job.label):
+                    attempt = running.pop(proc)
+                    try:
+                        output = proc.collect()
+                    except JobProcessDied as exc:
+                        if attempt <= self.retries:
+                            msg = f"{proc.job.label}: {exc}; running it again (attempt {attempt + 1})"
+                            log.warning("%s", msg)
+                            self.events.append(msg)
+                            queue.appendleft((proc.job, attempt + 1))
+                            continue
+                        yield Outcome(proc.job, error=f"{exc.__class__.__name__}: {exc}", lost=True, attempts=attempt)
+                    except JobError as exc:
+                        yield Outcome(proc.job, error=str(exc), attempts=attempt)
+                    else:
+                        yield Outcome(proc.job, output=output, attempts=attempt, worker="local")
+        finally:
+            _end_processes(list(running))
+
+    def close(self) -> None:
+        pass
+
+
+def _end_processes(procs: list[JobProcess]) -> None:
+    """Kill the running job processes and reap them; a second Ctrl-C meanwhile is ignored."""
+    if not procs:
+        return
+    import signal
+    import threading
+
+    main = threading.current_thread() is threading.main_thread()
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        for proc in procs:
+            proc.kill()
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, old)
+
+
+def make_executor(cluster: str | None = None, jobs: int = 1, retries: int = 1):
+    """The executor of ``--cluster`` (:func:`covviz.cluster.dask_executor`), or the local pool of ``--jobs``."""
+    if cluster is None:
+        return LocalExecutor(jobs, retries=retries)
+    from covviz.cluster import dask_executor
+
+    return dask_executor(cluster, retries=retries)
+
+
+@contextlib.contextmanager
+def lock_results_folder(out: Path):
+    """Hold ``out/.covviz-bench.lock`` for the block: one bench at a time writes into a folder.
+
+    The lock (``flock``) goes with the process, so a killed bench leaves none behind.
+
+    Raises
+    ------
+    BenchError
+        If another process holds it.
+    """
+    import fcntl
+
+    path = out / ".covviz-bench.lock"
+    fh = open(path, "a+")  # noqa: SIM115 - held for the block
+    try:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            fh.seek(0)
+            who = fh.read().strip() or "another process"
+            raise BenchError(
+                f"another covviz bench is writing into {out} ({who}); wait for it to finish, "
+                "or choose another --out"
+            ) from None
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f"pid {os.getpid()}\n")
+        fh.flush()
+        yield
+    finally:
+        fh.close()
 
 
 # --------------------------------------------------------------------------- #
@@ -355,6 +437,10 @@ def bench(
     force: bool = False,
     progress: bool = True,
     report: bool = True,
+    config: dict | None = None,
+    cluster: str | None = None,
+    retries: int = 1,
+    executor=None,
 ) -> dict:
     """Run ``trackers`` on every sequence under ``root``; write results and a report to ``out``.
 
@@ -369,7 +455,7 @@ def bench(
     seeds : int
         Seeds per stochastic tracker (``0 … seeds-1``).
     jobs : int
-        Worker processes; every job runs in a fresh one. Each worker gets
+        Jobs at a time on this machine, each in a fresh process with
         ``max(1, cpu_count // jobs)`` OpenCV/BLAS threads, so fps depend on ``jobs``.
     max_frames : int, optional
         Run only the first frames of each sequence.
@@ -381,42 +467,47 @@ def bench(
         Progress bar over jobs on stderr.
     report : bool
         Write ``out/report.md`` and its figures at the end.
+    config : dict, optional
+        A ManifoldConfig's fields (``as_dict()``, or a subset) for the trackers of
+        :data:`covviz.trackers.CONFIGURABLE` (``--config``); ``particles`` overrides its count.
+    cluster : str, optional
+        Run the jobs on a Dask cluster (:func:`covviz.cluster.dask_executor`:
+        ``tcp://host:8786``, a scheduler file, or ``local:N``); ``jobs`` is then unused.
+    retries : int
+        Times a job whose process died is run again before it counts as failed.
+    executor : Executor, optional
+        Run the jobs with this one (:class:`LocalExecutor`, a Dask one) instead of
+        making one from ``jobs``/``cluster``; it is not closed.
 
     Returns
     -------
     dict with ``run`` (count) and ``ran`` (labels) of the jobs done now, ``skipped``, ``failed``
-    (list of (label, message)) and ``report`` (path or None).
+    (list of (label, message)), ``events`` (lost workers, retried jobs) and ``report`` (path or None).
 
     Raises
     ------
     BenchError
         Empty root, unknown tracker, a folder from another run, a corrupt result.
     """
-    from covviz.sequences import SequenceError, open_sequence
-    from covviz.trackers import STOCHASTIC, tracker_names
+    from covviz.trackers import tracker_names
 
     try:
         trackers = tracker_names(trackers)
     except ValueError as exc:
         raise BenchError(str(exc)) from None
-    if seeds < 1 or jobs < 1:
-        raise BenchError("--seeds and --jobs must be at least 1")
+    if seeds < 1 or jobs < 1 or retries < 0:
+        raise BenchError("--seeds and --jobs must be at least 1, --retries at least 0")
     root = Path(root).resolve()
     out = Path(out)
+    if config is not None:
+        from covviz.trackers import CONFIGURABLE
 
-    # Sequences: fail early, with the sequence's name, on a folder that cannot be read.
-    sequences: dict[str, tuple[str, int]] = {}
-    for p in find_sequences(root):
-        try:
-            seq = open_sequence(p)
-            if len(seq) < 2:
-                raise SequenceError(f"{p}: a sequence needs at least 2 frames, found {len(seq)}")
-            seq.init_box  # noqa: B018 - raises if the first frame has no ground truth
-        except SequenceError as exc:
-            raise BenchError(f"sequence {p.name}: {exc}") from None
-        sequences[seq.name] = (str(p), len(seq))
+        if not set(trackers) & CONFIGURABLE:
+            raise BenchError(f"--config sets a ManifoldConfig: it needs one of {', '.join(sorted(CONFIGURABLE))}")
 
-    configs = tracker_configs(trackers, particles)
+    sequences = read_sequences(root, exclude=[out])
+
+    configs = tracker_configs(trackers, particles, config)
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".covviz-write-test"
@@ -424,6 +515,18 @@ def bench(
         probe.unlink()
     except OSError as exc:
         raise BenchError(f"cannot write to {out}: {exc.strerror or exc}; choose another --out") from None
+    with lock_results_folder(out):
+        return _bench_locked(
+            root, out, sequences, trackers, configs, seeds, jobs, max_frames, particles, force, progress,
+            report, config, cluster, retries, executor,
+        )
+
+
+def _bench_locked(
+    root, out, sequences, trackers, configs, seeds, jobs, max_frames, particles, force, progress, report,
+    config, cluster, retries, executor,
+) -> dict:
+    from covviz.trackers import STOCHASTIC
 
     manifest = {
         "format": MANIFEST_FORMAT,
@@ -444,7 +547,7 @@ def bench(
     manifest["stochastic"] = sorted(set(manifest["trackers"]) & STOCHASTIC)
     manifest["configs"] = {**((old or {}).get("configs") or {}), **configs}
 
-    all_jobs = plan_jobs(sequences, trackers, seeds, particles, max_frames)
+    all_jobs = plan_jobs(sequences, trackers, seeds, particles, max_frames, config)
     todo = all_jobs if force else [j for j in all_jobs if not _is_done(j, out, configs[j.tracker])]
     skipped = len(all_jobs) - len(todo)
     write_manifest(out, manifest)
@@ -453,87 +556,49 @@ def bench(
             "%d of %d jobs already done in %s; running the other %d", skipped, len(all_jobs), out, len(todo)
         )
 
-    if todo and any(j.tracker.startswith("manifold") for j in todo):
+    if todo and any(j.tracker.startswith("manifold") for j in todo) and (cluster is None or cluster.startswith("local:")):
         from covviz import kernels
 
-        # Once here, not in every fresh worker at the same time.
+        # Once here, not in every fresh job process at the same time (the compiled code is cached on disk).
         kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
-    ran, failed = _run_jobs(todo, out, jobs, progress)
-    if failed:
-        for label, msg in failed:
-            log.error("%s failed: %s", label, msg)
+    ran: list[str] = []
+    failed: list[tuple[str, str]] = []
+    events: list[str] = []
+    if todo:
+        ex = executor if executor is not None else make_executor(cluster, min(jobs, len(todo)), retries)
+        try:
+            with contextlib.closing(run_with_progress(ex, todo, progress, "bench")) as outcomes:
+                for outcome in outcomes:
+                    if outcome.output is not None:
+                        save_output(outcome.output, out)
+                        ran.append(outcome.job.label)
+                    else:
+                        failed.append((outcome.job.label, outcome.error or "unknown error"))
+                        log.error("%s failed: %s", outcome.job.label, outcome.error)
+        except KeyboardInterrupt:
+            log.warning("interrupted: finished results are kept in %s; run the same command to resume", out)
+            raise
+        finally:
+            events = list(ex.events)
+            if executor is None:
+                ex.close()
     rep = None
     if report:
         from covviz.report import write_report
 
         rep = write_report(out)
         log.info("report: %s", rep)
-    return {"run": len(ran), "ran": ran, "skipped": skipped, "failed": failed, "report": rep}
+    return {"run": len(ran), "ran": ran, "skipped": skipped, "failed": failed, "events": events, "report": rep}
 
 
-def _run_jobs(
-    todo: list[Job], out: Path, jobs: int, progress: bool
-) -> tuple[list[str], list[tuple[str, str]]]:
-    """Run the jobs, each in a fresh worker process; return (labels done, failed as (label, message)).
-
-    One process per job (``max_tasks_per_child=1``): OpenCV's MIL and TLD draw
-    from random state that carries over between runs in one process, so a fresh
-    process is what makes their results independent of job order (and equal to
-    a ``covviz track`` run). Workers are forked from a forkserver that has the
-    heavy modules loaded, so a new process costs milliseconds.
-    """
-    import multiprocessing as mp
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-
+def run_with_progress(executor, jobs: list[Job], progress: bool = True, desc: str = "bench") -> Iterator[Outcome]:
+    """``executor.run(jobs)`` with a progress bar over jobs on stderr; stops the jobs on any exit."""
     from tqdm import tqdm
     from tqdm.contrib.logging import logging_redirect_tqdm
 
-    done_labels: list[str] = []
-    failed: list[tuple[str, str]] = []
-    if not todo:
-        return done_labels, failed
-    threads = max(1, (os.cpu_count() or 1) // jobs)
-    # forkserver: workers are forked from a clean server process, not from this one
-    # (whose OpenCV/BLAS thread pools may already be running).
-    ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["covviz.bench", "covviz.runner", "covviz.results", "covviz.trackers.opencv"])
-    ex = ProcessPoolExecutor(
-        max_workers=min(jobs, len(todo)),
-        mp_context=ctx,
-        initializer=_init_worker,
-        max_tasks_per_child=1,
-    )
-    bar = tqdm(
-        total=len(todo), unit="job", desc="bench", file=sys.stderr, disable=not progress, dynamic_ncols=True
-    )
-    futures = {}
-    try:
-        with bar, logging_redirect_tqdm():
-            futures = {ex.submit(run_job, job, str(out), threads, jobs): job for job in todo}
-            pending = set(futures)
-            while pending:
-                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in sorted(finished, key=lambda f: futures[f].label):
-                    job = futures[fut]
-                    exc = fut.exception()
-                    if exc is not None:
-                        failed.append((job.label, f"{exc.__class__.__name__}: {exc}"))
-                    else:
-                        done_labels.append(job.label)
-                        log.debug("%s done: %.1f fps", job.label, fut.result()["fps"])
-                    bar.set_postfix_str(job.label)
-                    bar.update(1)
-    except KeyboardInterrupt:
-        log.warning("interrupted: finished results are kept in %s; run the same command to resume", out)
-        # Python 3.11 has no public way to stop running workers (3.14 adds terminate_workers());
-        # they are our own processes, so end them one by one. Futures are not cancelled first:
-        # 3.11's pool then fails them itself ("broken pool") without a spurious traceback.
-        procs = list((getattr(ex, "_processes", None) or {}).values())
-        for proc in procs:
-            proc.terminate()
-        for proc in procs:
-            proc.join(timeout=5)
-        ex.shutdown(wait=False)
-        raise
-    ex.shutdown(wait=True)
-    return done_labels, failed
+    bar = tqdm(total=len(jobs), unit="job", desc=desc, file=sys.stderr, disable=not progress, dynamic_ncols=True)
+    with bar, logging_redirect_tqdm(), contextlib.closing(executor.run(jobs)) as outcomes:
+        for outcome in outcomes:
+            bar.set_postfix_str(outcome.job.label)
+            bar.update(1)
+            yield outcome

@@ -60,10 +60,37 @@ def _moments(F: np.ndarray):
 
 
 def _finish(M: np.ndarray, s: np.ndarray, N: int, eps: float) -> np.ndarray:
-    """Unbiased covariance of ``N`` samples from raw moments, then regularised."""
+    """Unbiased covariance of ``N`` samples from raw moments, then regularised (and surely SPD)."""
     mu = s / N
     C = sym((M - N * mu[..., :, None] * mu[..., None, :]) / (N - 1))
-    return regularize(C, eps) if eps > 0 else C
+    return _surely_spd(regularize(C, eps)) if eps > 0 else C
+
+
+def _surely_spd(C: np.ndarray) -> np.ndarray:
+    """``C`` unchanged when every matrix has a Cholesky factor; else those that have none lifted.
+
+    The raw moments are float32 sums: on a nearly flat patch (a dark or
+    clipped region, gain-normalised), their cancellation can leave an error
+    larger than a small shrinkage ``eps``, and the matrix a hair short of
+    positive-definite. Those (and only those: every other result stays
+    bit-identical) get ``(-λ_min + 1e-9·tr/d)·I`` added.
+    """
+    try:
+        np.linalg.cholesky(C)
+        return C
+    except np.linalg.LinAlgError:
+        pass
+    C = C.copy()
+    flat = C.reshape(-1, *C.shape[-2:])
+    d = C.shape[-1]
+    for k in range(len(flat)):
+        try:
+            np.linalg.cholesky(flat[k])
+        except np.linalg.LinAlgError:
+            lam = np.linalg.eigvalsh(flat[k])
+            tiny = 1e-9 * max(float(np.trace(flat[k])) / d, np.finfo(float).tiny)
+            flat[k] += (max(0.0, -lam[0]) + tiny) * np.eye(d)
+    return C
 
 
 #: The four sub-regions of :func:`quadrant_covariances`, in order.

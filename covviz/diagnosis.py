@@ -37,6 +37,7 @@ import numpy as np
 from covviz.events import EVENT_DEFAULTS, Event, EventConfig, EventDetector
 from covviz.metrics import iou
 from covviz.observation import ObservationModel, box_to_pose
+from covviz.particles import effective_sample_size
 from covviz.spd import distance_jbld, distance_riemann, logdet, mean_logeuclid
 from covviz.trackers.base import to_gray
 
@@ -67,7 +68,7 @@ ON_TRACK_IOU = 0.5
 #: A particle has reached the truth when its box has at least this IoU with the ground-truth box.
 NEAR_IOU = 0.5
 #: Templates of the cloud scored at the truth and the estimate (an evenly strided subset plus the top ones).
-CLOUD_TEMPLATES = 150
+CLOUD_TEMPLATES = 64
 #: The heaviest templates always among them.
 CLOUD_TOP = 20
 #: Frames of evidence kept per tracker (bounds memory; a diagnosis looks back at most this far).
@@ -701,7 +702,8 @@ class Diagnoser:
         w = None if lw is None else np.exp(np.asarray(lw, dtype=np.float64))
         if w is not None and len(w):
             n = len(w)
-            kw["ess_frac"] = float(rec.ess) / n if np.isfinite(rec.ess) else float(1 / np.sum(w * w)) / n
+            ess = float(rec.ess) if np.isfinite(rec.ess) else effective_sample_size(lw)
+            kw["ess_frac"] = ess / n
             kw["max_weight"] = float(w.max())
             idx = rec.resample_indices
             kw["survivors"] = len(np.unique(idx)) / len(idx) if (rec.resampled and idx is not None and len(idx)) else 1.0
@@ -742,9 +744,11 @@ class Diagnoser:
             poses = np.stack([truth_pose, box_to_pose(box, probe.base_wh)])
             C, Q = probe.quadrant_descriptors(pg, poses)
             kw["truth_C"], kw["truth_Q"], kw["estimate_C"] = C[0], Q[0], C[1]
-            past = next((g for g, b in reversed(s.past) if iou(b[None], gt[None])[0] <= cfg.scene_iou), None)
-            if past is not None:
-                kw["scene_C"] = probe.descriptors(past, truth_pose[None])[0]
+            if s.past:
+                boxes = np.stack([b for _, b in s.past])
+                apart = np.flatnonzero(iou(boxes, np.broadcast_to(gt, boxes.shape)) <= cfg.scene_iou)
+                if len(apart):  # the latest frame where the target stood elsewhere
+                    kw["scene_C"] = probe.descriptors(s.past[int(apart[-1])][0], truth_pose[None])[0]
             s.past.append((pg, gt))
         model = s.model
         if model is not None and rec.estimate_template is not None and rec.pose is not None:

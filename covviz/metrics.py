@@ -26,6 +26,7 @@ __all__ = [
     "evaluate",
     "iou",
     "normalized_center_error",
+    "nothing_to_score",
     "on_track",
     "precision_curve",
     "success_curve",
@@ -55,6 +56,16 @@ def valid_rows(gt: np.ndarray) -> np.ndarray:
     """Boolean mask of ground-truth rows that are finite with positive size, ``(n,)``."""
     gt = _boxes(gt, "gt")
     return np.all(np.isfinite(gt), axis=1) & (gt[:, 2] > 0) & (gt[:, 3] > 0)
+
+
+def nothing_to_score(gt: np.ndarray) -> bool:
+    """True if no frame after the first has ground truth.
+
+    The first frame's box is the one the tracker was given, so metrics over it
+    alone (success AUC 0.95, P@20 1.0 …) would only score the user's own box:
+    a video with ``--box``, or ``--max-frames 1``.
+    """
+    return not bool(valid_rows(gt)[1:].any())
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from covviz import fgbg, kernels
+from covviz import fgbg
 from covviz.descriptor import covariance, quadrant_covariances
 from covviz.features import N_FEATURES, normalize_gradients, patch_features, pose_to_box, warp_patches
 from covviz.particles import log_likelihood
@@ -418,7 +418,7 @@ class ObservationModel:
         quadrants keep the target's part), this one does.
         """
         if self.compiled:
-            c = kernels.quadrant_distances_fast(Q, self.context_reference, self.context_logdet)
+            c = _kernels().quadrant_distances_fast(Q, self.context_reference, self.context_logdet)
         else:
             c = distance_jbld(self.context_reference, Q, logdet_a=self.context_logdet)
         return np.maximum(np.mean(np.asarray(q) ** 2 - c**2, axis=-1), 0.0)
@@ -470,14 +470,14 @@ class ObservationModel:
     @property
     def compiled(self) -> bool:
         """Whether this model observes with the compiled kernels (``jit`` and available)."""
-        return self.jit and kernels.JIT_ENABLED
+        return self.jit and _kernels().JIT_ENABLED
 
     def _observe_quadrants(self, gray: np.ndarray, poses: np.ndarray) -> np.ndarray:
         return self.quadrant_descriptors(gray, poses)[1]
 
     def _template_distances(self, L: np.ndarray, C: np.ndarray) -> np.ndarray:
         if self.compiled:
-            return kernels.template_distances_fast(L, np.broadcast_to(C, L.shape))
+            return _kernels().template_distances_fast(L, np.broadcast_to(C, L.shape))
         return distance_riemann_log(L, C)
 
     def initial_quadrant_state(self) -> QuadrantState | None:
@@ -490,7 +490,7 @@ class ObservationModel:
         """``sqrt(8·J)`` of quadrants ``Q`` (n, 4, 9, 9) against the references (the state's, if given), ``(n, 4)``."""
         ref, ld = (self.quadrant_reference, self.quadrant_logdet) if state is None else (state.reference, state.logdet)
         if self.compiled:
-            return kernels.quadrant_distances_fast(Q, ref, ld)
+            return _kernels().quadrant_distances_fast(Q, ref, ld)
         return distance_jbld(ref, Q, logdet_a=ld)
 
     def _quadrant_distances(self, Q: np.ndarray) -> np.ndarray:
@@ -523,14 +523,14 @@ class ObservationModel:
     def _chunk_compiled(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None, qstate=None):
         """:meth:`_chunk` with the compiled kernels: warp, features and covariance in one (timed as ``features``)."""
         t0 = time.perf_counter()
-        C, Q = kernels.warp_descriptors_fast(
+        C, Q = _kernels().warp_descriptors_fast(
             gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize,
             self.quadrants, self.grad_normalize,
         )
         t1 = time.perf_counter()
         d = q = None
         if templates is not None:
-            d = kernels.template_distances_fast(templates, C)
+            d = _kernels().template_distances_fast(templates, C)
             if Q is not None:
                 q = self.quadrant_distances(Q, qstate)
         t2 = time.perf_counter()
@@ -636,7 +636,7 @@ class ObservationModel:
         """
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4)
         if self.compiled:
-            return kernels.warp_descriptors_fast(
+            return _kernels().warp_descriptors_fast(
                 gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize, True,
                 self.grad_normalize,
             )
@@ -778,6 +778,14 @@ class ObservationModel:
     def log_likelihood(self, d_eff: np.ndarray) -> np.ndarray:
         """``-d_eff² / 2σ²``, the log-likelihood up to a constant (:func:`covviz.particles.log_likelihood`)."""
         return log_likelihood(d_eff, self.likelihood_sigma)
+
+
+def _kernels():
+    """:mod:`covviz.kernels`, imported on first use: commands that never observe (``report``,
+    ``events``, every ``--help``) do not pay for importing numba."""
+    from covviz import kernels
+
+    return kernels
 
 
 def _downsampled_shape(H: int, W: int, step: int) -> tuple[int, int]:

@@ -7,7 +7,16 @@ For a run of tracker ``T`` with seed ``S`` on sequence ``Q`` the files are::
 
 Reports and plots read these files, so nothing is recomputed (run → results on
 disk → report). Files are written to a temporary name and renamed, so an
-interrupted run never leaves a half-written result.
+interrupted run never leaves a half-written result; a write that fails (a full
+disk) removes its temporary file and raises a one-line
+:class:`~covviz.errors.WriteError`.
+
+:class:`ResultWriter` writes a run's files while it goes: every second the
+frames done so far (``"interrupted": true``), and the final files at the end.
+A run killed with SIGKILL (an out-of-memory kill) keeps the results of all but
+its last second. The JSON is written after the boxes and is what counts: a
+kill between the two renames leaves boxes the JSON does not count yet, and
+:func:`load_result` reads only the ``n_frames`` it names.
 
 A folder of many results (``covviz bench``) also holds ``bench_manifest.json``,
 which names the run it belongs to (:func:`read_manifest`, :func:`write_manifest`).
@@ -18,13 +27,14 @@ from __future__ import annotations
 import json
 import os
 import platform
+import time
 from pathlib import Path
 
 import numpy as np
 
 from covviz import __version__
-from covviz.errors import InputError
-from covviz.metrics import evaluate
+from covviz.errors import InputError, WriteError
+from covviz.metrics import evaluate, nothing_to_score
 from covviz.records import RunResult
 from covviz.sequences import read_boxes, write_boxes
 
@@ -33,6 +43,8 @@ __all__ = [
     "MANIFEST_FORMAT",
     "MANIFEST_NAME",
     "ResultError",
+    "ResultWriter",
+    "box_lines",
     "load_result",
     "read_manifest",
     "result_paths",
@@ -58,17 +70,54 @@ def result_paths(out_dir: str | Path, sequence: str, tracker: str, seed: int | N
     return d / f"{stem}.txt", d / f"{stem}.json"
 
 
-def _atomic_write(path: Path, text: str) -> None:
+#: What a user can do when results cannot be written.
+WRITE_HINT = "choose another --out"
+
+
+def _atomic_write_with(path: Path, write) -> None:
+    """``write(tmp)`` to ``PATH.part``, then rename it to ``path``; no ``.part`` is left if it fails."""
     tmp = path.with_name(path.name + ".part")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:
+            pass
+        raise
 
 
-def save_result(result: RunResult, out_dir: str | Path, extra: dict | None = None) -> dict:
-    """Write a run's boxes and JSON (metrics, times, config); return the JSON dict."""
+def _atomic_write(path: Path, text: str) -> None:
+    _atomic_write_with(path, lambda tmp: tmp.write_text(text))
+
+
+def box_lines(boxes: np.ndarray) -> list[str]:
+    """The lines of a boxes file for 0-based ``boxes``, exactly as :func:`~covviz.sequences.write_boxes` writes them."""
+    b = np.array(boxes, dtype=np.float64, copy=True).reshape(-1, 4)
+    b[:, :2] += 1.0
+    return [",".join(f"{v:.2f}" for v in row) + "\n" for row in b]
+
+
+def save_result(result: RunResult, out_dir: str | Path, extra: dict | None = None, *,
+                box_text: str | None = None) -> dict:
+    """Write a run's boxes and JSON (metrics, times, config); return the JSON dict.
+
+    ``box_text`` is the boxes file's text if it is already formatted (``"".join(box_lines(boxes))``).
+
+    Raises
+    ------
+    WriteError
+        If a file cannot be written (a full disk, a read-only folder); no
+        ``.part`` file is left and the files of an earlier save stay as they were.
+    """
     txt, js = result_paths(out_dir, result.sequence, result.tracker, result.seed)
-    txt.parent.mkdir(parents=True, exist_ok=True)
-    metrics = evaluate(result.boxes, result.groundtruth).as_dict() if len(result.boxes) else {}
+    gt = result.groundtruth
+    if len(gt) and nothing_to_score(gt):
+        # No ground truth after the first frame (a video with --box): the first box is the one the
+        # tracker was given, and scoring it alone would report a perfect run. Nothing is scored.
+        gt = np.full_like(gt, np.nan)
+    metrics = evaluate(result.boxes, gt).as_dict() if len(result.boxes) else {}
     doc = {
         "format": FORMAT,
         "sequence": result.sequence,
@@ -83,11 +132,90 @@ def save_result(result: RunResult, out_dir: str | Path, extra: dict | None = Non
         "versions": {"covviz": __version__, "numpy": np.__version__, "python": platform.python_version()},
         **(extra or {}),
     }
-    tmp = txt.with_name(txt.name + ".part")
-    write_boxes(tmp, result.boxes)
-    os.replace(tmp, txt)
-    _atomic_write(js, json.dumps(doc, indent=1, default=_json_default, allow_nan=True))
+    text = json.dumps(doc, indent=1, default=_json_default, allow_nan=True)
+    try:
+        txt.parent.mkdir(parents=True, exist_ok=True)
+        if box_text is None:
+            _atomic_write_with(txt, lambda tmp: write_boxes(tmp, result.boxes))
+        else:
+            _atomic_write(txt, box_text)
+        _atomic_write(js, text)  # last: the JSON says how many of the boxes count
+    except OSError as exc:
+        raise WriteError.from_os_error(txt, exc, WRITE_HINT) from None
     return doc
+
+
+class ResultWriter:
+    """Observer that keeps a run's results on disk while it goes (see the module docstring).
+
+    Parameters
+    ----------
+    out_dir : path
+        Results folder (as :func:`save_result`).
+    extra : dict or callable, optional
+        Extra JSON fields (as :func:`save_result`), or ``extra(j) -> dict`` for
+        the ``j``-th run, asked at every write (e.g. the drift diagnosis so far).
+    progress_seconds : float
+        How often the runner hands over the results so far (``on_progress``).
+
+    Attributes
+    ----------
+    docs : list of dict
+        The JSON documents of the final write (empty until ``on_end``).
+    saved_frames : int
+        Frames in the files on disk now (0 before the first write).
+    """
+
+    #: A write may take at most this share of the run: long runs are written less often.
+    MAX_SHARE = 0.02
+
+    def __init__(self, out_dir, extra=None, progress_seconds: float = 1.0) -> None:
+        self.out_dir = out_dir
+        self.extra = extra
+        self.period = float(progress_seconds)
+        # The first write comes with the first tracked frame: results of an earlier run under the
+        # same names are replaced at once, not a second later (a kill then would leave them).
+        self.progress_seconds = 0.0
+        self.docs: list[dict] = []
+        self.saved_frames = 0
+        self._failed = False
+        self._lines: dict[int, list[str]] = {}  # per run: the formatted boxes so far (they never change)
+
+    def on_progress(self, results) -> None:
+        t0 = time.perf_counter()
+        if self._save(results):
+            self.progress_seconds = max(self.period, (time.perf_counter() - t0) / self.MAX_SHARE)
+
+    def on_end(self, results) -> None:
+        try:
+            self.docs = self._save(results)
+        except WriteError:
+            if not (results and results[0].interrupted):
+                raise
+            # A stopped run (often stopped by this very disk): the files of the last good write
+            # stay, and saved_frames says how many frames they hold.
+
+    def _save(self, results) -> list[dict]:
+        if self._failed or not results or not len(results[0].boxes):
+            return []
+        if results[0].interrupted and len(results[0].boxes) < 2:
+            return []  # stopped before tracking anything: the one box is the one given
+        try:
+            extra = self.extra if callable(self.extra) else (lambda j: self.extra)
+            docs = [save_result(r, self.out_dir, extra(j), box_text=self._box_text(j, r.boxes))
+                    for j, r in enumerate(results)]
+        except WriteError:
+            self._failed = True  # once is enough: the files of the last good write stay
+            raise
+        self.saved_frames = len(results[0].boxes)
+        return docs
+
+    def _box_text(self, j: int, boxes: np.ndarray) -> str:
+        lines = self._lines.setdefault(j, [])
+        if len(lines) > len(boxes):
+            lines.clear()
+        lines.extend(box_lines(boxes[len(lines):]))
+        return "".join(lines)
 
 
 def load_result(json_path: str | Path) -> tuple[dict, np.ndarray]:
@@ -106,6 +234,8 @@ def load_result(json_path: str | Path) -> tuple[dict, np.ndarray]:
         boxes = read_boxes(txt, one_based=True)
     except (OSError, ValueError) as exc:
         raise ResultError(f"{txt}: cannot read the boxes of this result ({exc})") from None
+    if doc.get("interrupted") and isinstance(doc.get("n_frames"), int) and len(boxes) > doc["n_frames"]:
+        boxes = boxes[: doc["n_frames"]]  # killed between the two renames: the JSON counts
     if len(boxes) != doc.get("n_frames"):
         raise ResultError(f"{txt}: {len(boxes)} boxes but the JSON says {doc.get('n_frames')}; delete and re-run")
     return doc, boxes

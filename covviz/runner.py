@@ -10,12 +10,21 @@ observer. Observers are plain objects with any of the methods
 A Ctrl-C or an exception inside the tracker stops the loop; observers still get
 ``on_end`` with the frames done so far (``result.interrupted`` is True), so a
 recording holds every frame logged before the interruption. The exception is
-then re-raised.
+then re-raised. Every observer gets its ``on_end`` even if another one's fails,
+and a stop signal that arrives meanwhile waits until they are done
+(:func:`covviz.signals.shielded`).
+
+An observer that keeps files up to date while the run goes (the results
+writer, :class:`covviz.results.ResultWriter`) also has ``on_progress(results)``
+and a ``progress_seconds`` period: the runner calls it with the results of the
+frames done so far (``interrupted`` True) at most that often.
 """
 
 from __future__ import annotations
 
+import logging
 import queue
+import shutil
 import sys
 import threading
 import time
@@ -24,10 +33,14 @@ from collections.abc import Sequence as Seq
 
 import numpy as np
 
+from covviz.errors import WriteError
 from covviz.frames import Frame, Sequence
 from covviz.records import FrameRecord, RunResult
+from covviz.signals import shielded
 
-__all__ = ["BackgroundObserver", "Observer", "ResultCollector", "run", "run_many"]
+log = logging.getLogger("covviz")
+
+__all__ = ["BackgroundObserver", "FreeSpaceGuard", "Observer", "ResultCollector", "run", "run_many"]
 
 
 class Observer:
@@ -122,6 +135,52 @@ class BackgroundObserver(Observer):
                 self.observer.on_end(results)
 
 
+class FreeSpaceGuard(Observer):
+    """Stops a run while the disk under its files still has room to finish them.
+
+    A recording needs room at the end for its footer (a manifest of every chunk,
+    ~3% of the file) and for the batches still in memory; a results file for
+    its last write. Every ``progress_seconds`` the guard compares the free
+    space of each path's file system with ``reserve_bytes`` plus
+    ``footer_share`` of the file's size so far, and raises
+    :class:`~covviz.errors.WriteError` (the run stops, its files are finished
+    and readable) when there is less.
+
+    Parameters
+    ----------
+    paths : iterable of path
+        Files (or folders) the run writes.
+    reserve_bytes : int
+    footer_share : float
+    progress_seconds : float
+    """
+
+    def __init__(self, paths, reserve_bytes: int = 8_000_000, footer_share: float = 0.05,
+                 progress_seconds: float = 1.0) -> None:
+        from pathlib import Path
+
+        self.paths = [Path(p) for p in paths]
+        self.reserve_bytes = int(reserve_bytes)
+        self.footer_share = float(footer_share)
+        self.progress_seconds = float(progress_seconds)
+
+    def on_progress(self, results) -> None:
+        for p in self.paths:
+            folder = p if p.is_dir() else p.parent
+            try:
+                free = shutil.disk_usage(folder).free
+                size = p.stat().st_size if p.is_file() else 0
+            except OSError:
+                continue  # a folder that went away: the writes will say so
+            need = self.reserve_bytes + self.footer_share * size
+            if free < need:
+                raise WriteError(
+                    f"the disk of {p} is {'full' if free < 1e6 else 'almost full'} ({free / 1e6:.1f} MB free, "
+                    f"{need / 1e6:.0f} MB kept to finish the files): the run stopped; free some space, or write "
+                    "elsewhere (--out, --save)"
+                )
+
+
 def _progress(total: int, desc: str, enabled: bool):
     if not enabled:
         return None
@@ -146,8 +205,9 @@ def run_many(
     sequence : Sequence
     observers : iterable
         Objects with optional ``on_start(sequence, trackers)``,
-        ``on_frame(frame, records)`` (one record per tracker, in order) and
-        ``on_end(results)``.
+        ``on_frame(frame, records)`` (one record per tracker, in order),
+        ``on_progress(results)`` (with a ``progress_seconds`` period: the
+        results so far, marked interrupted) and ``on_end(results)``.
     max_frames : int, optional
         Stop after this many frames (including the first).
     progress : bool
@@ -168,13 +228,39 @@ def run_many(
     times = np.zeros((k, n))
     gt = np.full((n, 4), np.nan)
     seeds = list(seeds) if seeds is not None else [None] * k
-    for ob in observers:
-        if hasattr(ob, "on_start"):
-            ob.on_start(sequence, trackers)
     done = 0
     interrupted = False
-    bar = _progress(n, f"{sequence.name}", progress)
+    stopped_by: BaseException | None = None
+
+    def results_so_far(stopped: bool) -> list[RunResult]:
+        return [
+            RunResult(
+                sequence=sequence.name,
+                tracker=tr.name,
+                seed=seeds[j],
+                boxes=boxes[j, :done],
+                times=times[j, :done],
+                groundtruth=gt[:done],
+                config=tr.config_dict() if hasattr(tr, "config_dict") else {},
+                interrupted=stopped,
+            )
+            for j, tr in enumerate(trackers)
+        ]
+
+    # Observers that want the results so far, each with its own period (a monotonic deadline).
+    periodic = [[ob, time.monotonic() + float(ob.progress_seconds)] for ob in observers
+                if hasattr(ob, "on_progress")]
+    bar = None
+    started = []
     try:
+        # A stop signal while the observers start (the recorder opening its file) waits until
+        # they all have, so that each of them also gets its on_end.
+        with shielded():
+            for ob in observers:
+                if hasattr(ob, "on_start"):
+                    ob.on_start(sequence, trackers)
+                started.append(ob)
+        bar = _progress(n, f"{sequence.name}", progress)
         for i in range(n):
             frame = sequence.frame(i)
             if frame.gt is not None:
@@ -197,49 +283,54 @@ def run_many(
             for ob in observers:
                 if hasattr(ob, "on_frame"):
                     ob.on_frame(frame, records)
+            if periodic:
+                now = time.monotonic()
+                partial = None
+                for due in periodic:
+                    if now >= due[1]:
+                        partial = partial or results_so_far(stopped=True)
+                        due[0].on_progress(partial)
+                        due[1] = time.monotonic() + float(due[0].progress_seconds)
             if bar is not None:
                 bar.update(1)
                 if i % 10 == 0:
                     tot = times[:, 1 : i + 1].sum()
                     if tot > 0:
                         bar.set_postfix(fps=f"{k * i / tot:.0f}")
-    except BaseException:
+    except BaseException as exc:
         interrupted = True
+        stopped_by = exc
         raise
     finally:
         if bar is not None:
             bar.close()
-        results = [
-            RunResult(
-                sequence=sequence.name,
-                tracker=tr.name,
-                seed=seeds[j],
-                boxes=boxes[j, :done],
-                times=times[j, :done],
-                groundtruth=gt[:done],
-                config=tr.config_dict() if hasattr(tr, "config_dict") else {},
-                interrupted=interrupted,
-            )
-            for j, tr in enumerate(trackers)
-        ]
-        _end_all(observers, results)
+        results = results_so_far(interrupted)
+        _end(started, results, failing=stopped_by if interrupted else None)
     return results
 
 
-def _end_all(observers, results) -> None:
-    """``on_end`` of every observer, even when one raises (the first error is raised after all ran).
+def _end(observers, results, failing: BaseException | None) -> None:
+    """Every observer's ``on_end``, even when one fails; a stop signal waits until they are done.
 
-    A recorder that failed must not keep the results collector from getting the results.
+    The first failure is raised afterwards, unless the run is already failing (``failing``, the
+    exception that stopped it): then that exception goes on, with the observers' failures added
+    as notes (``add_note``: a traceback shows them; the command line words them its own way).
     """
-    first: BaseException | None = None
-    for ob in observers:
-        if hasattr(ob, "on_end"):
-            try:
-                ob.on_end(results)
-            except BaseException as exc:  # noqa: BLE001 - re-raised below, after the others
-                first = first or exc
-    if first is not None:
-        raise first
+    errors: list[BaseException] = []
+    with shielded():
+        for ob in observers:
+            if hasattr(ob, "on_end"):
+                try:
+                    ob.on_end(results)
+                except BaseException as exc:  # noqa: BLE001 - the others still get theirs
+                    errors.append(exc)
+    if not errors:
+        return
+    if failing is not None:
+        for exc in errors:
+            failing.add_note(f"{type(exc).__name__}: {exc}")
+        return
+    raise errors[0]
 
 
 def run(tracker, sequence: Sequence, observers: Iterable = (), max_frames=None, progress=False, seed=None):

@@ -112,10 +112,52 @@ def write_boxes(path: str | Path, boxes: np.ndarray, one_based: bool = True) -> 
 # image-file sequences
 # --------------------------------------------------------------------------- #
 def _read_image(path: Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    """RGB pixels of an image file; :class:`SequenceError` naming the file if it cannot be read whole."""
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except FileNotFoundError:
+        raise SequenceError(f"cannot read image {path}: the file is missing") from None
+    except OSError as exc:
+        raise SequenceError(f"cannot read image {path}: {exc.strerror or exc}") from None
+    if data[:2].tobytes() == b"\xff\xd8" and not _jpeg_complete(data.tobytes()):
+        # libjpeg would decode it with grey bottom rows and only warn "Premature end of JPEG file".
+        raise SequenceError(f"cannot read image {path}: the JPEG file is truncated ({data.size} bytes)")
+    img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     if img is None:
-        raise SequenceError(f"cannot read image {path}: the file is missing, empty or not an image")
+        raise SequenceError(f"cannot read image {path}: the file is empty or not an image")
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def _jpeg_complete(data: bytes) -> bool:
+    """Whether a JPEG file holds its end-of-image marker after its first scan.
+
+    Walks the marker segments up to the first start-of-scan (skipping an EXIF
+    thumbnail, which has its own end marker), then looks for FFD9 after it:
+    inside entropy-coded data a 0xFF byte is always followed by 0x00 or a
+    restart marker, so FFD9 there can only be the end. Trailing bytes after the
+    end (some cameras append data) are fine.
+    """
+    pos, n = 2, len(data)
+    while pos + 4 <= n:
+        if data[pos] != 0xFF:
+            return True  # not a layout we understand: leave it to the decoder
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+            continue
+        if marker == 0xD9:
+            return True
+        if marker == 0xDA:  # start of scan: the end marker must come after it
+            return data.find(b"\xff\xd9", pos + 2) >= 0
+        if 0xD0 <= marker <= 0xD7 or marker == 0x01:
+            pos += 2
+            continue
+        pos += 2 + int.from_bytes(data[pos + 2 : pos + 4], "big")
+    return False
+
+
+#: A frame file name ending in its number: "0001.jpg", "frame_12.png".
+_NUMBERED = re.compile(r"^(.*?)(\d+)$")
 
 
 def _list_images(folder: Path) -> list[Path]:
@@ -123,22 +165,71 @@ def _list_images(folder: Path) -> list[Path]:
     return sorted(files, key=lambda p: (len(p.stem), p.stem))
 
 
+def _number_frames(files: list[Path]) -> tuple[list[Path], list[int]]:
+    """Frames by number: the files with the missing numbers put back (as the paths they would have).
+
+    OTB and VOT frames are numbered (img/0001.jpg …) and ground-truth row k
+    belongs to the k-th number from the first; a file missing in the middle
+    must not shift every later frame onto the row before its own. Returns the
+    files, one per number from the first to the last, and the 0-based
+    positions of the missing ones. Files not all numbered alike (one prefix,
+    one extension, distinct numbers) are left as they are.
+    """
+    if len(files) < 2:
+        return files, []
+    parts = [_NUMBERED.match(p.stem) for p in files]
+    if not all(parts):
+        return files, []
+    numbers = [int(m.group(2)) for m in parts]
+    if (len({m.group(1) for m in parts}) != 1 or len({p.suffix for p in files}) != 1
+            or len(set(numbers)) != len(numbers)):
+        return files, []
+    first, last = min(numbers), max(numbers)
+    if last - first + 1 == len(files):
+        return sorted(files, key=lambda p: int(_NUMBERED.match(p.stem).group(2))), []
+    by_number = dict(zip(numbers, files))
+    widths = {len(m.group(2)) for m in parts}
+    width = widths.pop() if len(widths) == 1 else 0
+    prefix, suffix, folder = parts[0].group(1), files[0].suffix, files[0].parent
+    out, missing = [], []
+    for k in range(first, last + 1):
+        if k not in by_number:
+            missing.append(k - first)
+        out.append(by_number.get(k, folder / f"{prefix}{k:0{width}d}{suffix}"))
+    return out, missing
+
+
 class _ImageFilesSequence(Sequence):
     def __init__(self, name: str, files: list[Path], groundtruth: np.ndarray, frame_rate=None):
         if not files:
             raise SequenceError(f"{name}: no frames found (expected image files such as 0001.jpg)")
         self.name = name
-        self.files = files
+        #: One path per frame number; the files of the numbers in ``missing`` do not exist.
+        self.files, self.missing = _number_frames(files)
         self.frame_rate = frame_rate
-        n = len(files)
+        n = len(self.files)
         gt = np.full((n, 4), np.nan)
         m = min(n, len(groundtruth))
         gt[:m] = groundtruth[:m]
         self.groundtruth = gt
         self.n_gt_lines = len(groundtruth)
+        self._shape: tuple[tuple, Path] | None = None
 
     def _read(self, i: int) -> np.ndarray:
-        return _read_image(self.files[i])
+        return _same_size(self, _read_image(self.files[i]), self.files[i])
+
+
+def _same_size(seq, img: np.ndarray, path: Path) -> np.ndarray:
+    """``img``, or :class:`SequenceError` if its size differs from the sequence's first frame read."""
+    if seq._shape is None:
+        seq._shape = (img.shape, path)
+    elif img.shape != seq._shape[0]:
+        (h, w), (h0, w0) = img.shape[:2], seq._shape[0][:2]
+        raise SequenceError(
+            f"{path}: the frame is {w}x{h} but the sequence's frames are {w0}x{h0} ({seq._shape[1].name}); "
+            "every frame of a sequence must have the same size"
+        )
+    return img
 
 
 class OTBSequence(_ImageFilesSequence):
@@ -192,10 +283,17 @@ class VideoSequence(Sequence):
 
     def __init__(self, source: str | Path, box):
         source = str(source)
-        self.name = Path(source.split("*")[0]).stem or Path(source).parent.name or "video"
+        # The name is what comes before the first "*" (frames/img_*.png: "img_"), not counting the
+        # folders that exist as written (a folder may be called a*b).
+        head = _existing_head(source) if is_glob(source) else None
+        skip = len(str(head)) if head is not None else 0
+        prefix = source[:skip] + source[skip:].split("*")[0]
+        self.name = Path(prefix).stem or Path(source).parent.name or "video"
         self._cap = None
-        if any(c in source for c in "*?["):
-            files = [Path(p) for p in _glob.glob(source) if Path(p).suffix.lower() in IMAGE_EXTENSIONS]
+        self._shape = None
+        if is_glob(source):
+            files = [Path(p) for p in _glob.glob(_escape_existing(source))
+                     if Path(p).suffix.lower() in IMAGE_EXTENSIONS]
             # Same numeric order as folders (1.png, 2.png, 10.png), not lexical.
             self.files = sorted(files, key=lambda p: (str(p.parent), len(p.stem), p.stem))
             if not self.files:
@@ -225,7 +323,7 @@ class VideoSequence(Sequence):
 
     def _read(self, i: int) -> np.ndarray:
         if self.files is not None:
-            return _read_image(self.files[i])
+            return _same_size(self, _read_image(self.files[i]), self.files[i])
         if self._cap is None or i != self._next:
             if self._cap is not None:
                 self._cap.release()
@@ -241,6 +339,32 @@ class VideoSequence(Sequence):
 # --------------------------------------------------------------------------- #
 # dispatch
 # --------------------------------------------------------------------------- #
+def is_glob(source: str) -> bool:
+    """Whether ``source`` is an image glob: it has ``*``, ``?`` or ``[`` and is not an existing path.
+
+    A folder named ``br[1]`` or ``q?x`` is a folder.
+    """
+    return any(c in source for c in "*?[") and not Path(source).exists()
+
+
+def _existing_head(pattern: str) -> Path | None:
+    """The longest folder at the start of a glob pattern that exists as it is written."""
+    p = Path(pattern)
+    for k in range(len(p.parts) - 1, 0, -1):
+        head = Path(*p.parts[:k])
+        if head.is_dir():
+            return head
+    return None
+
+
+def _escape_existing(pattern: str) -> str:
+    """``pattern`` with its longest existing folder prefix escaped: ``br[1]/*.png`` globs inside ``br[1]``."""
+    head = _existing_head(pattern)
+    if head is None:
+        return pattern
+    return str(Path(_glob.escape(str(head)), *Path(pattern).parts[len(head.parts):]))
+
+
 def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
     """Open a sequence from a path, guessing its layout.
 
@@ -270,7 +394,7 @@ def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
     else:
         s = str(source)
         p = Path(s)
-        if any(c in s for c in "*?["):
+        if is_glob(s):
             if box is None:
                 raise SequenceError(f"{s}: an image glob needs --box x,y,w,h")
             return VideoSequence(s, box)
@@ -285,6 +409,11 @@ def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
                     "or groundtruth.txt with frames)"
                 )
         elif p.is_file():
+            if p.suffix.lower() in IMAGE_EXTENSIONS:
+                raise SequenceError(
+                    f"{p}: one image, not a sequence; for a folder of frames give a quoted glob such as "
+                    f"'{p.parent / ('*' + p.suffix)}' with --box x,y,w,h"
+                )
             if p.suffix.lower() not in VIDEO_EXTENSIONS:
                 raise SequenceError(f"{p}: not a video file ({', '.join(VIDEO_EXTENSIONS)}) or sequence folder")
             if box is None:

@@ -182,6 +182,47 @@ def test_core_modules_import_without_rerun():
     assert p.returncode == 0, f"importing {p.stdout.strip()} pulled in rerun\n{p.stderr[-2000:]}"
 
 
+#: The optional extra ``cluster``: imported lazily, only by --cluster and covviz tune.
+EXTRA_MODULES = ("dask", "distributed", "optuna")
+
+
+def test_the_core_and_the_cli_load_no_cluster_extra():
+    """Importing every module (covviz.cluster and covviz.tune included) and building the CLI loads
+    neither Dask nor Optuna: the core install stays as light as without the extra."""
+    mods = core_modules()
+    assert "covviz.cluster" in mods and "covviz.tune" in mods
+    code = (
+        "import importlib, sys\n"
+        f"for m in {mods!r}:\n"
+        "    importlib.import_module(m)\n"
+        "import covviz.cli\n"
+        "covviz.cli.build_parser()\n"
+        f"bad = sorted(k for k in sys.modules if k.split('.')[0] in {EXTRA_MODULES!r})\n"
+        "print(bad[:5]); sys.exit(1 if bad else 0)\n"
+    )
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    assert p.returncode == 0, f"the core imported {p.stdout.strip()}\n{p.stderr[-2000:]}"
+
+
+def test_numba_loads_only_with_the_kernels():
+    """numba (and its ~1 s of import) is pulled in by covviz.kernels alone, at the first compiled call:
+    every other module, and the CLI's --help, load without it."""
+    mods = [m for m in core_modules() if m != "covviz.kernels"]
+    assert "covviz.observation" in mods and "covviz.trackers.manifold" in mods
+    code = (
+        "import importlib, sys\n"
+        f"for m in {mods!r}:\n"
+        "    importlib.import_module(m)\n"
+        "    if 'numba' in sys.modules:\n"
+        "        print(m); sys.exit(1)\n"
+        "import covviz.cli\n"
+        "covviz.cli.build_parser()\n"
+        "sys.exit(1 if 'numba' in sys.modules else 0)\n"
+    )
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    assert p.returncode == 0, f"importing {p.stdout.strip() or 'the CLI'} loaded numba\n{p.stderr[-2000:]}"
+
+
 # --------------------------------------------------------------------------- #
 # import cycles
 # --------------------------------------------------------------------------- #

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import pytest
 
-from covviz import bench as bench_mod
+from covviz import jobs as jobs_mod
 from covviz.bench import BenchError, Job, bench, find_sequences, plan_jobs
 from covviz.cli import main
 from covviz.report import Stat, write_report
@@ -419,7 +419,7 @@ def test_failure_counter_reads_record_extras():
     from covviz.records import FrameRecord
     from covviz.sequences import Frame
 
-    fc = bench_mod._FailureCounter()
+    fc = jobs_mod._FailureCounter()
     for i, failed in enumerate([False, True, False, True]):
         fc.on_frame(
             Frame(i, np.zeros((2, 2, 3), np.uint8)), [FrameRecord(i, np.zeros(4), extras={"failed": failed})]

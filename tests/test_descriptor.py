@@ -386,3 +386,25 @@ def test_quadrant_covariances_reject_odd_or_non_square_patches():
         quadrant_covariances(np.zeros((1, D, 9 * 9), np.float32))
     with pytest.raises(ValueError, match="even"):
         quadrant_covariances(np.zeros((1, D, 30), np.float32))
+
+
+def test_float32_cancellation_never_leaves_a_descriptor_short_of_spd(rng):
+    """Raw float32 moments of a nearly constant feature far from zero cancel badly; a small shrinkage
+    alone can leave the covariance a hair short of positive-definite. The result must stay SPD, and
+    the descriptors that were fine must not change."""
+    n, d, N = 64, 9, 256
+    F = rng.standard_normal((n, d, N)).astype(np.float32) * 0.1
+    F[:, 2] = (1000.0 + 1e-4 * rng.standard_normal((n, N))).astype(np.float32)  # ~constant, far from 0
+    C = covariance(F, eps=1e-7)
+    assert np.all(np.linalg.eigvalsh(C)[:, 0] > 0)
+    np.linalg.cholesky(C)
+    healthy = rng.standard_normal((8, d, N)).astype(np.float32)
+    from covviz.descriptor import _finish, _moments
+
+    M, s = _moments(healthy)
+    mu = s / N
+    raw = (M - N * mu[..., :, None] * mu[..., None, :]) / (N - 1)
+    raw = 0.5 * (raw + np.swapaxes(raw, -1, -2))
+    from covviz.spd import regularize
+
+    np.testing.assert_array_equal(_finish(M, s, N, 1e-3), regularize(raw, 1e-3))

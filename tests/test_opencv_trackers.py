@@ -57,12 +57,40 @@ def test_peer_follows_a_moving_target(name, seq):
     assert iou(still, seq.groundtruth).mean() < MIN_MEAN_IOU  # the test is not trivial
     assert center_error(still, seq.groundtruth)[-1] > MAX_FINAL_CENTRE_ERROR
 
-    tracker = make_tracker(name)
-    result = run(tracker, seq)
-    assert result.boxes.shape == (N_FRAMES, 4)
-    assert np.all(np.isfinite(result.boxes))
-    assert iou(result.boxes, result.groundtruth).mean() >= MIN_MEAN_IOU
-    assert center_error(result.boxes, result.groundtruth)[-1] <= MAX_FINAL_CENTRE_ERROR
+    if name in PROCESS_STATE:
+        boxes = run_in_fresh_process(name)
+    else:
+        boxes = run(make_tracker(name), seq).boxes
+    assert boxes.shape == (N_FRAMES, 4)
+    assert np.all(np.isfinite(boxes))
+    assert iou(boxes, seq.groundtruth).mean() >= MIN_MEAN_IOU
+    assert center_error(boxes, seq.groundtruth)[-1] <= MAX_FINAL_CENTRE_ERROR
+
+
+#: OpenCV's MIL and TLD draw from random state that carries over between runs in one process (not
+#: reset by cv2.setRNGSeed): their result depends on what ran before them in the test session, so
+#: they run in a fresh process, as every covviz bench job does.
+PROCESS_STATE = ("mil", "tld")
+
+
+def run_in_fresh_process(name: str) -> np.ndarray:
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = (
+        "import json\n"
+        "from covviz.runner import run\n"
+        "from covviz.sequences import SyntheticConfig, SyntheticSequence\n"
+        "from covviz.trackers import make_tracker\n"
+        f"seq = SyntheticSequence(SyntheticConfig(n_frames={N_FRAMES}))\n"
+        f"print(json.dumps(run(make_tracker({name!r}), seq).boxes.tolist()))\n"
+    )
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True,
+                         timeout=300)
+    return np.array(json.loads(out.stdout))
 
 
 @pytest.mark.parametrize("name", ["csrt", "mosse"])  # one of the main API, one legacy

@@ -129,7 +129,7 @@ def test_d_eff_is_the_template_distance_plus_the_weighted_terms(synth):
     ll = -d2 / (2 * cfg.likelihood_sigma**2)
     np.testing.assert_allclose(rec.log_weights, ll - logsumexp(ll), atol=1e-9)
     # The model, given the frame and the state the record carries, says the same at a particle.
-    seq, frames = synth
+    _seq, frames = synth
     cmap = tr.model.colour_map(frames[3], rec.extras["colour_state"])
     gray = tr.model.prepare(frames[3])
     for i in (0, 21):
@@ -138,8 +138,8 @@ def test_d_eff_is_the_template_distance_plus_the_weighted_terms(synth):
 
 
 def test_new_terms_keep_boxes_independent_of_threads(synth):
-    kw = dict(n_particles=320, colour_weight=3.0, quadrant_reliability=0.05, quadrant_ref_rate=0.02,
-              anchor_pull=0.05, anchor_rate=0.02, refine_fraction=0.25, scale_steps=2, rotation_steps=1)
+    kw = {"n_particles": 320, "colour_weight": 3.0, "quadrant_reliability": 0.05, "quadrant_ref_rate": 0.02,
+              "anchor_pull": 0.05, "anchor_rate": 0.02, "refine_fraction": 0.25, "scale_steps": 2, "rotation_steps": 1}
     _, b1 = run(ManifoldConfig(threads=1, **kw), synth, 5)
     _, b2 = run(ManifoldConfig(threads=2, **kw), synth, 5)
     np.testing.assert_array_equal(b1, b2)
@@ -245,7 +245,7 @@ def test_pose_search_scores_what_the_likelihood_says(synth):
     from covviz.spd import logm
 
     L0 = logm(model.descriptors(gray, pose[None]))[0]
-    sp, sd, rp, rd = model.pose_search(gray, pose, L0, scales=[0.8, 1.0, 1.25], rotations=[-0.1, 0.0, 0.1])
+    sp, sd, _rp, rd = model.pose_search(gray, pose, L0, scales=[0.8, 1.0, 1.25], rotations=[-0.1, 0.0, 0.1])
     np.testing.assert_allclose(sp[:, 2], [0.8, 1.0, 1.25])
     np.testing.assert_allclose(sd, model.likelihood_distances(gray, sp, L0), rtol=1e-12)
     assert np.argmin(sd) == 1 and np.argmin(rd) == 1  # at the initial box, the initial template is best

@@ -13,6 +13,7 @@ import numpy as np
 from covviz.trackers.base import IdentityTracker, Tracker
 
 __all__ = [
+    "CONFIGURABLE",
     "STOCHASTIC",
     "TRACKERS",
     "IdentityTracker",
@@ -22,7 +23,8 @@ __all__ = [
     "tracker_rng",
 ]
 
-#: name -> "module:factory"; each factory takes (n_particles=None, rng=None).
+#: name -> "module:factory"; each factory takes (n_particles=None, rng=None), those of
+#: :data:`CONFIGURABLE` also config=None.
 TRACKERS = {
     "manifold": "covviz.trackers.manifold:make",
     "manifold-paper": "covviz.trackers.manifold:make_paper",
@@ -37,6 +39,8 @@ TRACKERS = {
 }
 #: Trackers whose output depends on the seed (run several seeds of these).
 STOCHASTIC = frozenset({"manifold", "manifold-paper", "ipca"})
+#: Trackers whose factory takes a ``config`` (a ManifoldConfig: ``covviz track|bench --config``).
+CONFIGURABLE = frozenset({"manifold", "manifold-paper"})
 
 
 def tracker_names(names) -> list[str]:
@@ -72,15 +76,18 @@ def tracker_rng(seed: int | None) -> np.random.Generator | None:
     return np.random.default_rng(np.random.SeedSequence(int(seed)).spawn(1)[0])
 
 
-def make_tracker(name: str, rng=None, n_particles: int | None = None, seed: int | None = None):
+def make_tracker(name: str, rng=None, n_particles: int | None = None, seed: int | None = None, config=None):
     """Build the tracker called ``name`` (see :data:`TRACKERS`).
 
     Give ``seed`` (the rule of :func:`tracker_rng`) or an explicit ``rng``, not both.
+    ``config``: the tracker's config object (trackers in :data:`CONFIGURABLE` only;
+    ``n_particles``, if given, overrides its particle count).
 
     Raises
     ------
     ValueError
-        If ``name`` is unknown (the message lists the known names).
+        If ``name`` is unknown (the message lists the known names), or ``config``
+        is given to a tracker that takes none.
     """
     if name not in TRACKERS:
         raise ValueError(f"unknown tracker {name!r}; choose from {', '.join(TRACKERS)}")
@@ -89,4 +96,9 @@ def make_tracker(name: str, rng=None, n_particles: int | None = None, seed: int 
             raise ValueError("give seed or rng, not both")
         rng = tracker_rng(seed)
     module, factory = TRACKERS[name].split(":")
-    return getattr(importlib.import_module(module), factory)(n_particles=n_particles, rng=rng)
+    kw = {}
+    if config is not None:
+        if name not in CONFIGURABLE:
+            raise ValueError(f"tracker {name!r} takes no config; only {', '.join(sorted(CONFIGURABLE))} do")
+        kw["config"] = config
+    return getattr(importlib.import_module(module), factory)(n_particles=n_particles, rng=rng, **kw)

@@ -63,7 +63,8 @@ def check_init_box(box, frame_shape) -> np.ndarray:
     ------
     covviz.errors.InputError
         (a ``ValueError``) If the box is not 4 finite numbers, has zero or
-        negative size, or lies entirely outside the frame.
+        negative size, lies entirely outside the frame or is more than
+        :data:`MAX_BOX_FRAMES` times its size.
     """
     b = np.asarray(box, dtype=np.float64).reshape(-1)
     if b.shape != (4,) or not np.all(np.isfinite(b)):
@@ -76,7 +77,17 @@ def check_init_box(box, frame_shape) -> np.ndarray:
         raise InputError(
             f"the initial box {x:g},{y:g},{w:g},{h:g} lies outside the {W}x{H} frame"
         )
+    if w > MAX_BOX_FRAMES * W or h > MAX_BOX_FRAMES * H:
+        raise InputError(
+            f"the initial box {x:g},{y:g},{w:g},{h:g} is more than {MAX_BOX_FRAMES:g} times the size of the "
+            f"{W}x{H} frame; give the box around the target"
+        )
     return b
+
+
+#: An initial box may be at most this many times the frame's width and height (a target partly
+#: outside the frame is fine; a box of 1e308 pixels overflows the warp).
+MAX_BOX_FRAMES = 2.0
 
 
 class IdentityTracker:

@@ -372,6 +372,75 @@ class ManifoldConfig:
         return cls(**kw)
 
 
+# --------------------------------------------------------------------------- #
+# what `covviz tune` searches (covviz.tune runs the study)
+# --------------------------------------------------------------------------- #
+#: The search space of ``covviz tune``, declared next to the config it searches:
+#: field -> (low, high, scale), scale ``"log"`` or ``"linear"`` (floats) or ``"int"``.
+#: A dotted name reaches into a nested field (``kinematics.pos_sigma.0``: mode 0 of the
+#: position noise). Every range holds the default, which a new study runs first; the
+#: ranges span what docs/tuning.md found to matter, about 3× either side of the default.
+SEARCH_SPACE: dict[str, tuple[float, float, str]] = {
+    "likelihood_sigma": (0.25, 1.0, "log"),
+    "template_sigma": (0.001, 0.03, "log"),
+    "quadrant_weight": (0.0, 2.0, "linear"),
+    "resample_threshold": (0.3, 1.0, "linear"),
+    "smooth_sigma": (0.0, 1.5, "linear"),
+    "eps": (1e-4, 1e-2, "log"),
+    "kinematics.pos_sigma.0": (0.01, 0.12, "log"),
+    "kinematics.scale_sigma.0": (0.003, 0.03, "log"),
+    "kinematics.velocity_decay": (0.5, 1.0, "linear"),
+}
+
+
+def _field_path(d: dict, name: str) -> tuple:
+    """The container and key of the dotted ``name`` inside ``as_dict()``'s output."""
+    *path, last = name.split(".")
+    for key in path:
+        d = d[int(key)] if isinstance(d, list) else d[key]
+    return d, int(last) if isinstance(d, list) else last
+
+
+def search_params(config: ManifoldConfig | None = None) -> dict[str, float]:
+    """The values of :data:`SEARCH_SPACE`'s names in ``config`` (default: the defaults)."""
+    d = (config or ManifoldConfig()).as_dict()
+    out = {}
+    for name in SEARCH_SPACE:
+        node, key = _field_path(d, name)
+        out[name] = node[key]
+    return out
+
+
+def config_from_params(params: dict, base: ManifoldConfig | None = None) -> ManifoldConfig:
+    """``base`` (default: the defaults) with the values of ``params`` (dotted names) set.
+
+    Raises
+    ------
+    ValueError
+        On an unknown name or a value the config refuses.
+    """
+    d = (base or ManifoldConfig()).as_dict()
+    for name, value in params.items():
+        try:
+            node, key = _field_path(d, name)
+            node[key]  # an unknown name raises here, not on assignment
+        except (KeyError, IndexError, ValueError, TypeError):
+            raise ValueError(f"unknown ManifoldConfig parameter {name!r}") from None
+        node[key] = value
+    return ManifoldConfig.from_dict(d)
+
+
+def suggest_config(trial, base: ManifoldConfig | None = None) -> ManifoldConfig:
+    """The config an Optuna ``trial`` proposes: one ``suggest_*`` per entry of :data:`SEARCH_SPACE`."""
+    params = {}
+    for name, (low, high, scale) in SEARCH_SPACE.items():
+        if scale == "int":
+            params[name] = trial.suggest_int(name, int(low), int(high))
+        else:
+            params[name] = trial.suggest_float(name, low, high, log=scale == "log")
+    return config_from_params(params, base)
+
+
 class ManifoldTracker:
     """Particle filter with per-particle covariance templates (the paper's method).
 
@@ -586,7 +655,7 @@ class ManifoldTracker:
         tc = time.perf_counter()
         cmap = model.colour_map(frame, colour_state)
         tm["colour"] = time.perf_counter() - tc
-        n2 = int(round(cfg.refine_fraction * len(states))) if cfg.refine_fraction > 0 else 0
+        n2 = round(cfg.refine_fraction * len(states)) if cfg.refine_fraction > 0 else 0
         n1 = len(states) - n2
         ob = model.observe(
             gray, poses[:n1], templates[:n1], self._pool, cfg.threads, tm, colour=cmap, quadrant_state=qstate
@@ -744,9 +813,13 @@ def _parabolic_step(d: np.ndarray) -> float:
     return j - (len(c) - 1) / 2 + off
 
 
-def make(n_particles: int | None = None, rng=None) -> ManifoldTracker:
-    """Factory for the tracker registry: defaults, optionally another particle count."""
-    cfg = ManifoldConfig() if n_particles is None else ManifoldConfig(n_particles=n_particles)
+def make(n_particles: int | None = None, rng=None, config: ManifoldConfig | None = None) -> ManifoldTracker:
+    """Factory for the tracker registry: ``config`` (default: the defaults), optionally another particle count."""
+    from dataclasses import replace
+
+    cfg = config or ManifoldConfig()
+    if n_particles is not None:
+        cfg = replace(cfg, n_particles=n_particles)
     return ManifoldTracker(cfg, rng)
 
 
@@ -767,9 +840,10 @@ PAPER_LIKELIHOOD = {
 NEW_TERMS_OFF = {k: v for k, v in PAPER_LIKELIHOOD.items() if k != "quadrants"}
 
 
-def make_paper(n_particles: int | None = None, rng=None) -> ManifoldTracker:
-    """Factory for ``manifold-paper``: the defaults with :data:`PAPER_LIKELIHOOD` (the paper's likelihood)."""
-    kw = {} if n_particles is None else {"n_particles": n_particles}
-    tr = ManifoldTracker(ManifoldConfig(**PAPER_LIKELIHOOD, **kw), rng)
+def make_paper(n_particles: int | None = None, rng=None, config: ManifoldConfig | None = None) -> ManifoldTracker:
+    """Factory for ``manifold-paper``: ``config`` (default: the defaults) with :data:`PAPER_LIKELIHOOD`."""
+    from dataclasses import replace
+
+    tr = make(n_particles, rng, replace(config or ManifoldConfig(), **PAPER_LIKELIHOOD))
     tr.name = "manifold-paper"
     return tr

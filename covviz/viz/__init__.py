@@ -12,7 +12,18 @@
 * :mod:`covviz.viz.snapshot` — ``covviz snapshot``: PNGs from the headless viewer.
 
 Importing this package does not import rerun; the submodules that log do.
+Before they do, it quietens Rerun's own log lines about its file sink (unless
+``RUST_LOG`` is set): a full disk printed three lines of Rust log, which
+:func:`covviz.viz.sinks.close_stream` replaces with one line that says what
+happened and what the file still holds.
 """
+
+import os
+
+#: Rerun's log filter while covviz runs: warnings, except the file sink's and the stream's sink
+#: errors, which covviz checks and reports itself (sinks.close_stream).
+RUST_LOG = "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off"
+os.environ.setdefault("RUST_LOG", RUST_LOG)
 
 __all__ = ["LoggerConfig", "RerunLogger", "attach_sinks", "new_recording"]
 

@@ -34,8 +34,9 @@ from covviz import __version__
 from covviz.diagnosis import Diagnoser, DiagnosisConfig
 from covviz.embedding import AlignedMDS, distance_matrix, stress1
 from covviz.features import pose_corners
-from covviz.metrics import center_error, evaluate, iou
+from covviz.metrics import center_error, evaluate, iou, nothing_to_score
 from covviz.observation import ObservationModel, box_to_pose
+from covviz.particles import effective_sample_size
 from covviz.records import FrameRecord, frame_number
 from covviz.spd import logm
 from covviz.threads import limit_threads
@@ -65,7 +66,7 @@ from covviz.viz.palette import (
     weight_levels,
     weight_lut,
 )
-from covviz.viz.sinks import FLUSH_TIMEOUT
+from covviz.viz.sinks import FLUSH_TIMEOUT, close_stream
 
 __all__ = ["LoggerConfig", "RerunLogger"]
 
@@ -125,10 +126,10 @@ class LoggerConfig:
 
     mds_every: int = 10
     likelihood_every: int | None = None
-    spread_every: int = 1
+    spread_every: int = 3
     spread_templates: int = 32
     top_k: int = 10
-    mds_max_templates: int = 48
+    mds_max_templates: int = 32
     mds_method: str = "classical"
     n_background: int = 16
     likelihood_grid: int = 17
@@ -185,7 +186,7 @@ class _TrackerState:
         self.model: ObservationModel | None = None  # from the tracker's init record
         self.mds = AlignedMDS(cfg.mds_method)
         # SMACOF for the cloud alone: classical MDS would flatten it (see covviz.embedding.embed).
-        self.mds_zoom = AlignedMDS("smacof", max_iter=30)
+        self.mds_zoom = AlignedMDS("smacof", max_iter=20)
         self.spread_mean: np.ndarray | None = None
         self.index = index
         self.initial_template: np.ndarray | None = None
@@ -462,6 +463,8 @@ class RerunLogger:
         dense = i <= s.dense_until
         self._log_diagnostics(s, frame, record, box, gt, est_t, prepared_cache, problems, dense)
         self._log_events(s, frame, found)
+        if i <= s.dense_until and i not in s.drawn:  # an event on this very frame: its views too
+            self._log_diagnostics(s, frame, record, box, gt, est_t, prepared_cache, problems, dense=True)
         if problems:
             self._warn(s, problems)
 
@@ -531,7 +534,7 @@ class RerunLogger:
                     draw_order=25.0,
                 ),
             )
-            ess = float(record.ess) if np.isfinite(record.ess) else float(1.0 / np.sum(w * w))
+            ess = float(record.ess) if np.isfinite(record.ess) else effective_sample_size(lw)
             rec.log(p.ess, rr.Scalars(ess / n))
             rec.log(p.max_weight, rr.Scalars(float(w.max())))
             if record.resampled:
@@ -783,6 +786,11 @@ class RerunLogger:
             record, s.initial_template, target, background, slots, cfg.top_k, cfg.mds_max_templates, s.rng
         )
         if len(cloud.matrices) < 3:
+            # Nothing to embed: say so in the picture, rather than leave it empty (or stale).
+            for root in (p.cloud, p.cloud_zoom):
+                rec.log(f"{root}", rr.Clear(recursive=True))
+                rec.log(f"{root}/note", rr.TextLog(f"frame {frame_number(frame.index)}: only {len(cloud.matrices)} "
+                                                   "matrices (no templates or no target): no picture", level="WARN"))
             return
         D = distance_matrix(cloud.matrices)
         i = int(frame.index)
@@ -888,7 +896,7 @@ class RerunLogger:
                 "|---|---|---|---|---|---|---|---|---|",
             ]
             for s, r in zip(self._states, results):
-                if len(r.boxes):
+                if len(r.boxes) and not nothing_to_score(r.groundtruth):
                     m = evaluate(r.boxes, r.groundtruth)
                     auc, p20, miou = f"{m.success_auc:.3f}", f"{m.precision_20:.3f}", f"{m.mean_iou:.3f}"
                 else:
@@ -918,14 +926,10 @@ class RerunLogger:
                 self.close()
 
     def close(self) -> None:
-        """Flush everything logged so far and disconnect the stream (finalises an ``.rrd`` file).
+        """Send everything logged so far and disconnect the stream (finalises an ``.rrd`` file).
 
         A live viewer that went away cannot take the rest: that is a warning, not an error
-        (the file sink, if any, has everything).
+        (the file sink, if any, has everything). A file cut short (a full disk) raises
+        :class:`~covviz.errors.WriteError` (see :func:`~covviz.viz.sinks.close_stream`).
         """
-        try:
-            self.stream.flush(timeout_sec=FLUSH_TIMEOUT)
-        except RuntimeError as exc:
-            log.warning("the recording could not be fully sent (%s); is the viewer still running?", exc)
-        finally:
-            self.stream.disconnect()
+        close_stream(self.stream, timeout=FLUSH_TIMEOUT)

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from covviz.embedding import distance_matrix, embed
+from covviz.errors import InputError
 from covviz.metrics import iou, valid_rows
 from covviz.observation import ObservationModel, box_to_pose
 from covviz.spd import expm
@@ -173,7 +174,7 @@ def separation_data(
     rng = np.random.default_rng([cfg.seed, 1])
     valid = np.flatnonzero(valid_rows(sequence.groundtruth))
     if len(valid) < 2:
-        raise ValueError(f"{sequence.name}: figure (a) needs ground truth on at least 2 frames")
+        raise InputError(f"{sequence.name}: figure (a) needs ground truth on at least 2 frames")
     model = model or default_model(sequence)
     stride = max(1, int(np.ceil(len(valid) / cfg.max_target)))
     picked = valid[::stride]
@@ -249,15 +250,29 @@ def random_walk_data(
 
     frames = sorted({int(f) for f in cfg.frames if int(f) <= len(sequence)})
     if not frames:
-        raise ValueError(
+        raise InputError(
             f"{sequence.name}: none of the frames {list(cfg.frames)} is in the sequence "
             f"({len(sequence)} frames)"
         )
+    dropped = sorted({int(f) for f in cfg.frames} - set(frames))
+    if dropped:
+        # the paper's frames outlast a short sequence: only worth a warning when the user chose them
+        level = logging.INFO if tuple(cfg.frames) == DEFAULT_FRAMES else logging.WARNING
+        log.log(level, "%s: frames %s are past the end (%d frames); the random walk shows %s", sequence.name,
+                    ", ".join(map(str, dropped)), len(sequence), ", ".join(map(str, frames)))
     col = _WalkCollector({f - 1 for f in frames} | {0}, cfg)
     with make(n_particles=cfg.n_particles, rng=np.random.default_rng([cfg.seed, 3])) as tracker:
         run(tracker, sequence, [col], max_frames=max(frames), progress=progress, seed=cfg.seed)
+    no_target = [f for f in frames if not any(k == "target" and fr == f for k, fr in zip(col.kinds, col.frames))]
+    if no_target:
+        log.warning("%s: no ground truth at frames %s: the figure has no target (red) there", sequence.name,
+                    ", ".join(map(str, no_target)))
     M = np.concatenate(col.mats)
-    X = embed(distance_matrix(M), cfg.method)
+    D = distance_matrix(M)
+    if not np.any(D > 0):
+        raise InputError(f"{sequence.name}: every template and descriptor of the random walk is the same matrix; "
+                         "there is nothing to draw (a constant image?)")
+    X = embed(D, cfg.method)
     return RandomWalk(X, np.array(col.kinds), np.array(col.frames), col.model)
 
 
@@ -419,9 +434,51 @@ def save_pngs(sep: Separation | None, walk: RandomWalk | None, out_dir: Path, st
                     label="initial template",
                 )
             ax.scatter([], [], s=60, color=rgb(RED), marker="*", label="target (frame)")
+            _zoom_to_walk(ax, walk, rgb(BLUE))
             written.append(_finish(plt, fig, ax, f"{stem}: random walk of the templates (MDS)", 7,
                                    out_dir / f"{stem}-mds-random-walk.png", _model_note(sep, walk)))
     return written
+
+
+#: Width over height of the zoomed random-walk axes (about the free area of a 6 x 5.2 in figure).
+WALK_BOX_ASPECT = 1.3
+
+
+def _zoom_to_walk(ax, walk: RandomWalk, background_colour) -> None:
+    """Frame the templates and targets; background descriptors far outside go to an inset.
+
+    Background regions sit several distance units from the target while a template cloud spans a
+    fraction of one, so framing everything shrinks each cloud to a dot. The main axes frame what the
+    figure is about (templates, targets, the initial template); when some background lies beyond that
+    view, an inset shows the full extent with the zoomed region outlined.
+    """
+    import matplotlib.patches as mpatches
+
+    mb = walk.kinds == "background"
+    if not mb.any() or mb.all():
+        return
+    focus = walk.coords[~mb]
+    lo, hi = focus.min(axis=0), focus.max(axis=0)
+    pad = 0.15 * max(float((hi - lo).max()), 1e-6)
+    lo, hi = lo - pad, hi + pad
+    # equal axis units in a box about as wide as the figure's: grow the narrower side about its centre
+    width = max(float(hi[0] - lo[0]), WALK_BOX_ASPECT * float(hi[1] - lo[1]))
+    size = np.array([width, width / WALK_BOX_ASPECT])
+    centre = (lo + hi) / 2
+    lo, hi = centre - size / 2, centre + size / 2
+    outside = ~((walk.coords[mb] >= lo) & (walk.coords[mb] <= hi)).all(axis=1)
+    if not outside.any():
+        return
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    inset = ax.inset_axes((0.02, 0.02, 0.3, 0.3))
+    inset.scatter(*walk.coords[mb].T, s=3, color=background_colour, edgecolors="none")
+    inset.scatter(*focus.T, s=3, color="0.85", edgecolors="none")
+    inset.add_patch(mpatches.Rectangle(lo, *(hi - lo), fill=False, edgecolor="white", linewidth=0.8))
+    inset.set_xticks([])
+    inset.set_yticks([])
+    inset.set_aspect("equal", adjustable="datalim")
+    inset.set_title(f"full extent: {int(outside.sum())} background outside", fontsize=6, pad=2)
 
 
 def _finish(plt, fig, ax, title: str, legend_size: int, path: Path, note: str = "") -> Path:
@@ -434,7 +491,8 @@ def _finish(plt, fig, ax, title: str, legend_size: int, path: Path, note: str = 
                  fontsize=6, color="0.75")
     ax.set_xlabel("MDS 1 (Riemannian distance units)")
     ax.set_ylabel("MDS 2")
-    ax.set_aspect("equal", adjustable="datalim")
+    # zoomed axes (fixed limits) keep them and give up the box shape; the others grow their limits
+    ax.set_aspect("equal", adjustable="datalim" if ax.get_autoscalex_on() else "box")
     ax.legend(loc="best", fontsize=legend_size)
     fig.tight_layout(rect=(0, 0.06 if note else 0, 1, 1))
     fig.savefig(path)
