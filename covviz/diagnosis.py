@@ -242,6 +242,11 @@ class FrameEvidence:
         elsewhere: the scene that stands at the target's place.
     contain : float
         Share of the smaller of the estimate's and the truth's boxes inside the larger.
+    term_gaps : dict of str to float, or None
+        Each part of ``d_eff²`` of the estimate's template at the truth minus at
+        the estimate, by name (``descriptor`` for ``d²``, then each term of the
+        likelihood, weighted): positive parts are those that made the
+        likelihood prefer the estimate's place to the truth's.
     """
 
     frame: int
@@ -270,6 +275,7 @@ class FrameEvidence:
     estimate_C: np.ndarray | None = None
     scene_C: np.ndarray | None = None
     contain: float = float("nan")
+    term_gaps: dict | None = None
 
     def series(self) -> dict[str, float]:
         """The scalar evidence of this frame, by name (for logging and results)."""
@@ -283,7 +289,20 @@ class FrameEvidence:
         }
         if self.brightness is not None:
             out["brightness"] = float(np.mean(self.brightness))
+        for k, v in (self.term_gaps or {}).items():
+            out[f"gap_{k}"] = float(v)
         return out
+
+
+def _term_gaps(model, gray, truth_pose, est_pose, template, inputs: dict) -> dict[str, float]:
+    """Each part of ``d_eff²`` of ``template`` at the truth minus at the estimate (see ``FrameEvidence.term_gaps``)."""
+    ob = model.observe(gray, np.stack([truth_pose, est_pose]), np.stack([template, template]), **inputs)
+    d2 = np.asarray(ob.distances, dtype=np.float64) ** 2
+    gaps = {"descriptor": float(d2[0] - d2[1])}
+    weights = model.term_weights
+    for k, t in ob.terms.items():
+        gaps[k] = float(weights[k] * (t[0] - t[1]))
+    return gaps
 
 
 def _box_quadrant_means(gray: np.ndarray, box) -> tuple[np.ndarray, float]:
@@ -573,6 +592,12 @@ def diagnose(history: list[FrameEvidence], lost_at: int, drift_began: int, cfg: 
     if n_low >= cfg.impoverished_frames:
         held.append("impoverishment")
 
+    # ---- which part of the likelihood preferred the wrong place (model failures) --------------
+    model_frames = [h for h in win if h.label == "model" and h.term_gaps]
+    if model_frames:
+        for k in model_frames[-1].term_gaps:
+            ev[f"gap_{k}"] = float(np.mean([h.term_gaps.get(k, 0.0) for h in model_frames]))
+
     labels = {k: sum(1 for h in win if h.label == k) for k in LABELS[1:]}
     ordered = [c for c in CAUSES if c in held]
     cause = ordered[0] if ordered else "unknown"
@@ -615,6 +640,14 @@ def _card(cause, also, lost_at, drift_began, ev, labels, last: FrameEvidence) ->
     )
     if also:
         s += f" Also held: {', '.join(a.replace('_', ' ') for a in also)}."
+    gaps = {k[4:]: v for k, v in ev.items() if k.startswith("gap_") and np.isfinite(v)}
+    if len(gaps) > 1:  # the likelihood has terms: say which preferred the estimate's place
+        parts = sorted(gaps.items(), key=lambda kv: -kv[1])
+        s += (
+            " On the model failures the likelihood preferred the estimate's place through "
+            + ", ".join(f"{k} {v:+.2f}" for k, v in parts)
+            + " (d_eff² at the truth - at the estimate, mean)."
+        )
     return s
 
 
@@ -760,11 +793,13 @@ class Diagnoser:
                 sub = _cloud_subset(w, cfg.cloud_templates, cfg.cloud_top)
                 cloud.append(np.asarray(rec.templates, dtype=np.float64)[sub])
             L = np.concatenate(cloud)
-            at_truth = model.template_scores(mg, truth_pose, L)
-            at_est = model.template_scores(mg, est_pose, L)
+            inputs = model.frame_inputs(frame.image, rec.extras)  # every term update() weighed by
+            at_truth = model.template_scores(mg, truth_pose, L, **inputs)
+            at_est = model.template_scores(mg, est_pose, L, **inputs)
             kw["d_truth"], kw["d_est"] = float(at_truth[0]), float(at_est[0])
             kw["best_truth"] = float(at_truth.min())
             kw["best_est"] = float(at_est.min())
+            kw["term_gaps"] = _term_gaps(model, mg, truth_pose, est_pose, L[0], inputs)
             kw["label"] = self._label(kw)
         return FrameEvidence(**kw)
 

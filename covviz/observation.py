@@ -454,6 +454,26 @@ class ObservationModel:
             g = cv2.GaussianBlur(g, (0, 0), self.smooth_sigma)
         return g
 
+    def frame_inputs(self, frame: np.ndarray, extras: dict | None) -> dict:
+        """What the likelihood of ``frame`` depends on besides a pose and a template, from a record's ``extras``.
+
+        The colour map of the frame (from ``extras["colour_state"]``, the state
+        the tracker weighed this frame with) and the quadrant state
+        (``extras["quadrant_state"]``), as keyword arguments of
+        :meth:`likelihood_distances`, :meth:`template_scores` and
+        :meth:`pose_search`: with them those say exactly what ``update()``
+        weighed by, all terms included. ``{}`` for a record without them (the
+        paper's likelihood, another tracker).
+        """
+        extras = extras or {}
+        out = {}
+        cmap = self.colour_map(frame, extras.get("colour_state"))
+        if cmap is not None:
+            out["colour"] = cmap
+        if extras.get("quadrant_state") is not None and self.quadrants:
+            out["quadrant_state"] = extras["quadrant_state"]
+        return out
+
     def colour_map(self, frame: np.ndarray, state: fgbg.ColourModel | None) -> fgbg.ColourMap | None:
         """The foreground probability of a (raw, colour) ``frame`` given the colour state; None without the term."""
         if not self.colour or state is None:

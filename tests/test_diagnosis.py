@@ -188,9 +188,22 @@ def test_diagnoser_scores_the_truth_through_the_trackers_own_model():
     g = m.prepare(seq.frame(4).image)
     from covviz.observation import box_to_pose
 
-    at_truth = m.likelihood_distances(g, np.repeat(box_to_pose(seq.frame(4).gt, m.base_wh)[None], 40, 0), rec.templates)
+    # Every term update() weighed by: the default likelihood has the colour term, whose map
+    # comes from the frame and the colour state the record carries.
+    inputs = m.frame_inputs(seq.frame(4).image, rec.extras)
+    assert "colour" in inputs and m.term_weights["colour"] > 0
+    truth = np.repeat(box_to_pose(seq.frame(4).gt, m.base_wh)[None], 40, 0)
+    at_truth = m.likelihood_distances(g, truth, rec.templates, **inputs)
     assert ev.best_truth == pytest.approx(at_truth.min(), rel=1e-9)
-    assert ev.d_est == pytest.approx(float(m.likelihood_distances(g, rec.pose, rec.estimate_template)[0]), rel=1e-9)
+    d_est = float(m.likelihood_distances(g, rec.pose, rec.estimate_template, **inputs)[0])
+    assert ev.d_est == pytest.approx(d_est, rel=1e-9)
+    # Without the colour map the model would say something else here: the inputs matter.
+    assert not np.allclose(m.likelihood_distances(g, truth, rec.templates), at_truth)
+    # The parts of d_eff² at the truth minus at the estimate add up to the whole difference.
+    d_truth = float(m.likelihood_distances(g, truth[0], rec.estimate_template, **inputs)[0])
+    assert set(ev.term_gaps) == {"descriptor", *m.term_weights}
+    assert sum(ev.term_gaps.values()) == pytest.approx(d_truth**2 - d_est**2, rel=1e-9, abs=1e-12)
+    assert ev.d_truth == pytest.approx(d_truth, rel=1e-9)
 
 
 def test_suspects_without_ground_truth(rng):

@@ -306,3 +306,32 @@ def test_gradient_normalisation_kernel_matches_the_numpy_path(synth):
     np.testing.assert_allclose(a.quadrants, b.quadrants, rtol=1e-4, atol=1e-6)
     plain = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(grad_normalize=0.0)).observe(gray, poses)
     assert not np.allclose(plain.descriptors, a.descriptors)
+
+
+@pytest.mark.parametrize("extra", [{}, {"quadrant_reliability": 0.05, "quadrant_ref_rate": 0.02}])
+def test_frame_inputs_say_what_update_weighed_by(synth, extra):
+    """The model, given a frame and its record's extras, gives every particle's d_eff exactly: what the
+    recorder's likelihood map and slices and the diagnosis ask through it."""
+    cfg = ManifoldConfig(n_particles=40, threads=1, **extra)
+    tr, _ = run(cfg, synth, n_frames=5)
+    rec = tr.last_record
+    _seq, frames = synth
+    inputs = tr.model.frame_inputs(frames[4], rec.extras)
+    assert set(inputs) == ({"colour", "quadrant_state"} if extra else {"colour"})
+    gray = tr.model.prepare(frames[4])
+    d = tr.model.likelihood_distances(gray, rec.particle_poses, rec.templates, **inputs)
+    np.testing.assert_allclose(d, rec.extras["likelihood_distances"], rtol=1e-9)
+    for i in (0, 17):
+        one = tr.model.template_scores(gray, rec.particle_poses[i], rec.templates[i][None], **inputs)
+        np.testing.assert_allclose(one, rec.extras["likelihood_distances"][i : i + 1], rtol=1e-9)
+    tr.close()
+
+
+def test_frame_inputs_of_the_papers_likelihood_are_empty(synth):
+    tr = make_paper(n_particles=20, rng=1)
+    seq, frames = synth
+    tr.init(frames[0], seq.init_box)
+    tr.update(frames[1])
+    assert tr.model.frame_inputs(frames[1], tr.last_record.extras) == {}
+    assert tr.model.frame_inputs(frames[1], None) == {}
+    tr.close()

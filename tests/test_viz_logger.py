@@ -13,7 +13,7 @@ from covviz.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers.base import IdentityTracker
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz import paths as P
-from covviz.viz.logger import LoggerConfig, RerunLogger
+from covviz.viz.logger import LoggerConfig, RerunLogger, term_shares
 from covviz.viz.palette import LUT, weight_levels
 from covviz.viz.sinks import attach_sinks, new_recording
 
@@ -214,6 +214,57 @@ def test_scalars_equal_the_records(run):
         assert wmax[f] == pytest.approx(w.max())
         assert dmin[f] == pytest.approx(rec.distances.min())
         assert dmean[f] == pytest.approx(float(np.dot(w, rec.distances)))
+
+
+def test_likelihood_terms_equal_the_records(run):
+    """Each term of d_eff²: its weighted value on every top particle, its share and the weight it moved."""
+    t = run["temporal"]
+    p = P.TrackerPaths("manifold")
+    sigma = ManifoldConfig().likelihood_sigma
+    parts = ("descriptor", "quadrants", "colour")  # the default likelihood's
+    share = {k: scalar_series(t, p.term_share(k)) for k in parts}
+    moved = {k: scalar_series(t, p.term_moved(k)) for k in parts}
+    top_i = last(t, p.top, "particle")
+    top_terms = {k: last(t, p.top, f"term_{k}") for k in parts[1:]}
+    for i in range(1, N_FRAMES):
+        rec, f = run["col"].records[i][0], i + 1
+        w, tw = rec.weights, rec.extras["term_weights"]
+        contrib = {k: tw[k] * rec.extras["terms"][k] for k in parts[1:]}
+        for k, c in contrib.items():
+            np.testing.assert_allclose(top_terms[k][f], c[top_i[f]], rtol=1e-12)
+        exp_share, exp_moved = term_shares(w, rec.distances, contrib, sigma)
+        assert sum(share[k][f] for k in parts) == pytest.approx(1.0, abs=1e-6)
+        for k in parts:
+            assert share[k][f] == pytest.approx(exp_share[k], rel=1e-6)
+            assert moved[k][f] == pytest.approx(exp_moved[k], rel=1e-6, abs=1e-9)
+
+
+def test_term_shares_properties():
+    rng = np.random.default_rng(0)
+    n, sigma = 200, 0.5
+    d = rng.uniform(0.5, 1.5, n)
+    c_const = np.full(n, 0.7)  # the same for every particle: it moves no weight
+    c_var = rng.uniform(0.0, 1.0, n)
+    d2 = d**2 + c_const + c_var
+    ll = -d2 / (2 * sigma**2)
+    w = np.exp(ll - ll.max())
+    w /= w.sum()
+    share, moved = term_shares(w, d, {"const": c_const, "var": c_var}, sigma)
+    assert sum(share.values()) == pytest.approx(1.0)
+    assert share["const"] == pytest.approx(0.7 / float(np.dot(w, d2)))
+    assert moved["const"] == pytest.approx(0.0, abs=1e-12)
+    # Without "var", the weights are those of d² alone (the constant cancels).
+    w_wo = np.exp(-(d**2) / (2 * sigma**2))
+    w_wo /= w_wo.sum()
+    assert moved["var"] == pytest.approx(0.5 * np.abs(w - w_wo).sum())
+    assert all(0.0 <= v <= 1.0 for v in moved.values())
+    # A term that alone decides (d the same everywhere): without it the weights are uniform.
+    ll = -(1 + 40 * c_var) / (2 * sigma**2)
+    w2 = np.exp(ll - ll.max())
+    w2 /= w2.sum()
+    share, moved = term_shares(w2, np.ones(n), {"var": c_var * 40}, sigma)
+    assert moved["descriptor"] == pytest.approx(0.0, abs=1e-12)
+    assert moved["var"] == pytest.approx(0.5 * np.abs(w2 - 1 / n).sum()) and moved["var"] > 0.9
 
 
 def test_heatmaps_equal_the_records(run):

@@ -171,6 +171,16 @@ def build_blueprint(
         rrb.Spatial2DView(name=f"Template | observed | difference (log space) · {p.name}", origin=f"/{p.heatmap}")
         for p in cp
     ]
+    if pp:
+        lower.append(
+            rrb.TimeSeriesView(
+                name="Likelihood terms: share of d_eff² (bold) · weight each moved (thin), 0..1",
+                origin="/",
+                contents=[f"+ /{p.terms}/**" for p in pp],
+                axis_y=rrb.ScalarAxis(range=(0.0, 1.05)),
+                plot_legend=rrb.PlotLegend(visible=False),
+            )
+        )
     lower.append(
         rrb.TimeSeriesView(
             name="Timings (ms)",

@@ -44,7 +44,8 @@ running away) warn from the filter's own numbers. Thresholds: `config`, `diagnos
 * **red box**: ground truth. **Coloured box** (yellow for `manifold`): the estimate as scored;
   the thin outline of the same colour is the estimated rotated region.
 * **bold green outlines**: the top 10 particles (hover one: its weight, its distance, the
-  distance it was weighed by and its four quadrant distances). **Dots**: particle centres, sized
+  distance it was weighed by, its four quadrant distances and each term of the likelihood,
+  weighted: `d_eff² = distance² + the sum of term_*`). **Dots**: particle centres, sized
   by weight. All particles' outlines, coloured by weight, are one toggle away (the eye of
   `particles` in this view).
 * **Likelihood map** (every *k*-th frame and on every frame around an event): the
@@ -63,6 +64,8 @@ running away) warn from the filter's own numbers. Thresholds: `config`, `diagnos
   score better, but no particle reached it), **diamond estimate** failure (particles reached the
   better-scoring truth, the estimate is elsewhere).
 * **Weights**: ESS/N, max weight, survivors of resampling (dots: resampled).
+  The **Why off track** label carries, in the diagnosis of a loss, which part of the likelihood
+  (descriptor, quadrants, colour) preferred the estimate's place to the truth's.
 * **Cloud**: min and weighted-mean `d(C, C*)`, the template **spread**, the target's **gap** to
   the cloud relative to its usual gap on track (1 = healthy; 2 and more: the target has left the
   templates' reach), the **background margin** (>0: the target is nearer the cloud than any
@@ -82,6 +85,12 @@ running away) warn from the filter's own numbers. Thresholds: `config`, `diagnos
 ## Heatmaps · timings (right, below)
 The estimate's template `logm(C)`, the descriptor observed at the estimate `logm(C*)` and their
 difference, on fixed colour scales (the bars below them); rows and columns are the 9 features.
+**Likelihood terms** (a tab, trackers whose likelihood has terms beyond `d(C, C*)`): each part
+of `d_eff²` (`descriptor` = `d²`, `quadrants`, `colour`) as its **share** of what the weighted
+particles were weighed by (bold; the shares sum to 1) and the **weight it moved** (thin: the total
+variation between the weights and the weights without that part; 0 = it changed nothing, near 1 =
+it alone decided who carries the weight). *A term whose moved weight jumps as the IoU drops is the
+one the failure came from.*
 **Timings**: milliseconds per stage of the update, and the recorder's own time.
 
 ## Reading a drift

@@ -100,6 +100,7 @@ def likelihood_map(
     template_log: np.ndarray,
     grid: int = 21,
     reach: float = 1.0,
+    **inputs,
 ) -> LikelihoodMap:
     """Likelihood of the estimate's template over positions around the estimate.
 
@@ -123,6 +124,10 @@ def likelihood_map(
         Positions per axis (odd: the estimate is at the centre).
     reach : float
         Half-width of the grid in region sizes.
+    **inputs
+        What the frame's likelihood depends on besides pose and template
+        (:meth:`ObservationModel.frame_inputs`: the colour map, the quadrant
+        state), so the map weighs by every term ``update()`` did.
     """
     if grid < 2:
         raise ValueError(f"grid must be at least 2, got {grid}")
@@ -133,7 +138,7 @@ def likelihood_map(
     xs, ys = cx + u * w, cy + u * h
     X, Y = np.meshgrid(xs, ys)
     poses = np.stack([X.ravel(), Y.ravel(), np.full(X.size, s), np.full(X.size, th)], axis=1)
-    d = model.likelihood_distances(prepared, poses, template_log).reshape(grid, grid)
+    d = model.likelihood_distances(prepared, poses, template_log, **inputs).reshape(grid, grid)
     d2 = d * d
     ll = -(d2 - d2.min()) / (2.0 * sigma * sigma)
     i, j = np.unravel_index(np.argmin(d), d.shape)
@@ -367,12 +372,14 @@ def likelihood_slices(
     template_log: np.ndarray,
     scales: np.ndarray = SLICE_SCALES,
     angles: np.ndarray = SLICE_ANGLES,
+    **inputs,
 ) -> LikelihoodSlices:
     """``d_eff`` of ``template_log`` about ``pose``'s centre along scale and along rotation.
 
     Two 1-D slices of the likelihood (through the tracker's own model): a
     curve flat across scale says the likelihood cannot tell a box too large
     from the right one; a minimum away from 1 says it prefers another size.
+    ``inputs`` as for :func:`likelihood_map`.
     """
     cx, cy, s, th = np.asarray(pose, dtype=np.float64).reshape(4)
     sc = np.asarray(scales, dtype=np.float64)
@@ -383,5 +390,5 @@ def likelihood_slices(
             np.stack([np.full(len(an), cx), np.full(len(an), cy), np.full(len(an), s), th + an], axis=1),
         ]
     )
-    d = model.likelihood_distances(prepared, poses, template_log)
+    d = model.likelihood_distances(prepared, poses, template_log, **inputs)
     return LikelihoodSlices(sc, d[: len(sc)], an, d[len(sc) :])

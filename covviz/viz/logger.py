@@ -205,7 +205,55 @@ class _TrackerState:
         self.series_colors = dict(SERIES_COLORS)
         self.clear_next: list[str] = []
         self.stages_seen: set[str] = set()
+        self.terms_seen: set[str] = set()
         self.warned: set[str] = set()
+
+
+def term_contributions(extras: dict, n: int, problems: list | None = None) -> dict[str, np.ndarray]:
+    """``weight_k · term_k`` per particle, ``(n,)`` each, of the extra terms a record's ``extras`` carry.
+
+    ``extras["terms"]`` (unweighted, by name) and ``extras["term_weights"]``, as
+    the manifold tracker records them: ``d_eff² = d² + Σ_k`` of these. ``{}``
+    for a record without them (the paper's likelihood, another tracker).
+    """
+    terms = (extras or {}).get("terms") or {}
+    weights = (extras or {}).get("term_weights") or {}
+    out = {}
+    for k, t in terms.items():
+        t = checked(t, (n,), f"terms[{k}]", problems if problems is not None else [])
+        if t is not None and k in weights:
+            out[k] = float(weights[k]) * np.asarray(t, dtype=np.float64)
+    return out
+
+
+def term_shares(
+    w: np.ndarray, dist: np.ndarray, contrib: dict[str, np.ndarray], sigma: float | None
+) -> tuple[dict[str, float], dict[str, float]]:
+    """How much each part of ``d_eff² = d² + Σ_k c_k`` counted in one frame's weights.
+
+    Returns ``share`` and ``moved``, by name (``descriptor`` for ``d²``, then
+    each term): ``share_k = Σ_i w_i c_ik / Σ_i w_i d_eff,i²``, its part of what
+    the weighted particles were weighed by (the shares sum to 1); and, given
+    the likelihood's ``sigma``, ``moved_k = ½ Σ_i |w_i − w_i^(−k)|``, the total
+    variation between the weights and those without that part (0: the weights
+    would be the same without it; near 1: it alone decided who carries the
+    weight). A large share that moves little is a constant offset; a term
+    that moves the weight away from the truth is the one a failure came from.
+    """
+    w = np.asarray(w, dtype=np.float64)
+    parts = {"descriptor": np.asarray(dist, dtype=np.float64) ** 2, **contrib}
+    sums = {k: float(np.dot(w, v)) for k, v in parts.items()}
+    total = sum(sums.values())
+    share = {k: (v / total if total > 0 else float("nan")) for k, v in sums.items()}
+    moved = {}
+    if sigma is not None and sigma > 0:
+        d2 = sum(parts.values())
+        for k, v in parts.items():
+            lw = -(d2 - v) / (2.0 * sigma * sigma)
+            wk = np.exp(lw - lw.max())
+            wk /= wk.sum()
+            moved[k] = 0.5 * float(np.abs(w / w.sum() - wk).sum())
+    return share, moved
 
 
 # --------------------------------------------------------------------------- #
@@ -515,6 +563,10 @@ class RerunLogger:
             if d_quad is not None:
                 for j in range(d_quad.shape[1]):
                     top_any[f"quadrant_distance_{j}"] = d_quad[top, j]
+            # Each extra term of d_eff², weighted (d_eff² = d² + Σ term_k): which one a particle lost by.
+            contrib = term_contributions(record.extras, len(w), problems)
+            for k, c in contrib.items():
+                top_any[f"term_{k}"] = c[top]
             rec.log(
                 p.top,
                 rr.LineStrips2D(
@@ -547,9 +599,27 @@ class RerunLogger:
             if dist is not None:
                 rec.log(p.distance_min, rr.Scalars(float(dist.min())))
                 rec.log(p.distance_mean, rr.Scalars(float(np.dot(w, dist))))
+                if contrib:
+                    self._log_terms(s, w, dist, contrib)
         elif s.had_particles:
             for path in (p.particles, p.top, p.centres):
                 rec.log(path, rr.Clear(recursive=False))
+
+    def _log_terms(self, s: _TrackerState, w: np.ndarray, dist: np.ndarray, contrib: dict) -> None:
+        """Each likelihood term's share of ``d_eff²`` and the weight it moved (see :func:`term_shares`)."""
+        rec, p = self.stream, s.paths
+        sigma = s.model.likelihood_sigma if s.model is not None else None
+        share, moved = term_shares(w, dist, contrib, sigma)
+        for k in share:
+            if k not in s.terms_seen:
+                s.terms_seen.add(k)
+                rec.log(p.term_share(k), rr.SeriesLines(names=[f"{s.name} share of d_eff² · {k}"], widths=[2.0]),
+                        static=True)
+                rec.log(p.term_moved(k), rr.SeriesLines(names=[f"{s.name} weight moved by {k}"], widths=[0.8]),
+                        static=True)
+            rec.log(p.term_share(k), rr.Scalars(share[k]))
+            if k in moved:
+                rec.log(p.term_moved(k), rr.Scalars(moved[k]))
 
     def _log_quality(self, s: _TrackerState, box, gt) -> float | None:
         """IoU and centre error against the ground truth; returns the IoU (None without ground truth)."""
@@ -654,21 +724,23 @@ class RerunLogger:
             return
         try:
             if want_lik:
-                self._log_likelihood(s, model, prepared, pose, est_t)
+                # Every term update() weighed this frame by (the colour map, the quadrant state).
+                inputs = model.frame_inputs(frame.image, record.extras)
+                self._log_likelihood(s, model, prepared, pose, est_t, inputs)
                 truth = None if gt is None else box_to_pose(gt, model.base_wh)
-                self._log_slices(s, model, prepared, pose, truth, est_t)
+                self._log_slices(s, model, prepared, pose, truth, est_t, inputs)
             if want_mds:
                 self._log_cloud(s, model, prepared, frame, record, pose, gt)
         except (ValueError, np.linalg.LinAlgError) as exc:
             problems.append(f"diagnostics failed on frame {frame_number(i)} ({exc})")
 
-    def _log_slices(self, s: _TrackerState, model, prepared, pose, truth_pose, est_t) -> None:
-        at_est = likelihood_slices(model, prepared, pose, est_t)
+    def _log_slices(self, s: _TrackerState, model, prepared, pose, truth_pose, est_t, inputs) -> None:
+        at_est = likelihood_slices(model, prepared, pose, est_t, **inputs)
         at_truth = None
         if truth_pose is not None:
             # At the truth's centre, at its scale and the estimate's rotation: what the likelihood says there.
             tp = np.array([truth_pose[0], truth_pose[1], truth_pose[2], pose[3]])
-            at_truth = likelihood_slices(model, prepared, tp, est_t)
+            at_truth = likelihood_slices(model, prepared, tp, est_t, **inputs)
         why.log_slices(self.stream, s.paths, at_est, at_truth, s.color, GT_COLOR)
         s.clear_next.append(f"{s.paths.slices}/estimate")
         s.clear_next.append(f"{s.paths.slices}/truth")
@@ -747,9 +819,9 @@ class RerunLogger:
             ),
         )
 
-    def _log_likelihood(self, s: _TrackerState, model, prepared, pose, est_t) -> None:
+    def _log_likelihood(self, s: _TrackerState, model, prepared, pose, est_t, inputs) -> None:
         cfg, rec, p = self.config, self.stream, s.paths
-        lm = likelihood_map(model, prepared, pose, est_t, cfg.likelihood_grid, cfg.likelihood_reach)
+        lm = likelihood_map(model, prepared, pose, est_t, cfg.likelihood_grid, cfg.likelihood_reach, **inputs)
         x0, y0, x1, y1 = lm.extent
         g = cfg.likelihood_grid
         rec.log(

@@ -18,6 +18,8 @@ The entity tree::
     trackers/<name>/weights/...      Scalars: ess (ESS/N), max, survivors; SeriesPoints: resampled
     trackers/<name>/distance/...     Scalars: min, mean (weighted), spread (template cloud)
     trackers/<name>/metrics/...      Scalars: iou, center_error; SeriesPoints: drift, lost, recovered
+    trackers/<name>/terms/share/<term>  Scalars: each likelihood term's share of d_eff² (weighted mean)
+    trackers/<name>/terms/moved/<term>  Scalars: weight the term moved (total variation, with vs without it)
     trackers/<name>/timings/<stage>  Scalars: milliseconds per stage of the update
     trackers/<name>/tensors          Tensor (3, 9, 9): template, observed, difference, log space
     trackers/<name>/cloud/<kind>     Points2D: MDS of the template cloud (template, top, estimate, initial,
@@ -224,6 +226,19 @@ class TrackerPaths:
     def heatmap(self) -> str:
         """The estimate's template, its observation and their difference as labelled 9x9 heatmaps."""
         return f"{self.root}/heatmap"
+
+    @property
+    def terms(self) -> str:
+        """Series of the likelihood's terms: each one's share of ``d_eff²`` and the weight it moved."""
+        return f"{self.root}/terms"
+
+    def term_share(self, name: str) -> str:
+        """``Σ w_i c_i / Σ w_i d_eff,i²`` of one term ``c`` (``descriptor`` = ``d²``): its share of what was weighed."""
+        return f"{self.terms}/share/{name}"
+
+    def term_moved(self, name: str) -> str:
+        """Total-variation distance between the weights and the weights without that term, in [0, 1]."""
+        return f"{self.terms}/moved/{name}"
 
     @property
     def cloud_health(self) -> str:
