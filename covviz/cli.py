@@ -136,8 +136,8 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
         type=tracker_list,
         default=["manifold"],
         metavar="NAME[,NAME…]",
-        help="tracker(s) to run: manifold (default), manifold-paper (without the quadrant term: the paper's "
-        "likelihood), ipca, identity, csrt, kcf, mil, mosse, medianflow, tld",
+        help="tracker(s) to run: manifold (default), manifold-paper (the paper's likelihood: without the quadrant "
+        "term, the derivative normalisation and the colour term), ipca, identity, csrt, kcf, mil, mosse, medianflow, tld",
     )
     p.add_argument("--particles", type=positive_int, help="number of particles (default: the tracker's own)")
     add_config_arg(p)
@@ -664,6 +664,15 @@ def add_report_parser(sub) -> argparse.ArgumentParser:
     p.add_argument(
         "--out", type=Path, help="markdown file to write (default: DIR/report.md); figures go to its img/"
     )
+    p.add_argument(
+        "--append",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="FILE.md",
+        help="markdown to append to the report as is, e.g. the ablation that benchmarks/ablation.py writes "
+        "(repeatable)",
+    )
     p.set_defaults(func=cmd_report)
     return p
 
@@ -805,7 +814,7 @@ def cmd_tune(args) -> int:
 def cmd_report(args) -> int:
     from covviz.report import write_report
 
-    path = write_report(args.dir, args.out)
+    path = write_report(args.dir, args.out, append=args.append)
     print(f"report: {path}")
     return 0
 

@@ -657,7 +657,7 @@ def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
     return "\n".join(L).rstrip("\n") + "\n"
 
 
-def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path:
+def write_report(results_dir: str | Path, out: str | Path | None = None, append=()) -> Path:
     """Write the report of the bench in ``results_dir``; return the markdown path.
 
     Parameters
@@ -667,11 +667,20 @@ def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path
     out : path, optional
         The markdown file (default ``results_dir/report.md``); figures go to
         ``img/`` beside it.
+    append : sequence of paths
+        Markdown files appended to the report as they are (read before
+        anything is written: a missing one is an error and the report is kept).
     """
     d = Path(results_dir)
     md_path = Path(out) if out is not None else d / REPORT_NAME
     if md_path.suffix.lower() != ".md":
         raise ResultError(f"--out must be a markdown file (.md), got {md_path}")
+    extra = []
+    for a in append:
+        try:
+            extra.append(Path(a).read_text().strip())
+        except OSError as exc:
+            raise ResultError(f"cannot read {a} (--append): {exc.strerror or exc}") from None
     summary = summarize(d)
     img_dir = md_path.parent / IMG_DIR
     try:
@@ -680,6 +689,8 @@ def write_report(results_dir: str | Path, out: str | Path | None = None) -> Path
         raise ResultError(f"cannot write to {img_dir}: {exc.strerror or exc}") from None
     figs = _figures(img_dir, summary.sequences, summary.trackers, summary.by, summary.thresholds)
     text = render(summary, md_path, figs)
+    if extra:
+        text = text.rstrip("\n") + "\n\n" + "\n\n".join(extra) + "\n"
     tmp = md_path.with_name(md_path.name + ".part")
     tmp.write_text(text)
     os.replace(tmp, md_path)

@@ -1,15 +1,18 @@
 #!/usr/bin/env bash
 # Regenerate docs/results.md and docs/img/bench_*.png from a full benchmark on the shared sequences:
-# the manifold tracker (with and without its quadrant term) and IPCA with 3 seeds, CSRT, KCF and MIL once, every sequence under ROOT.
+# the manifold tracker (the default and the paper's likelihood) and IPCA with 3 seeds, CSRT, KCF and MIL once, every sequence under ROOT.
 # Resumable: run it again after an interruption and finished runs are kept.
 #
 #   bash scripts/make_results.sh [ROOT] [RUNS_DIR]
 #
-# ROOT defaults to ../shared/sequences, RUNS_DIR to runs/bench (outside git: runs/ is ignored).
+# ROOT defaults to ../shared/sequences, RUNS_DIR to runs/bench (outside git: runs/ is ignored); the ablation
+# goes to RUNS_DIR-ablation.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=${1:-../shared/sequences}
 RUNS=${2:-runs/bench}
 covviz bench "$ROOT" --trackers manifold,manifold-paper,ipca,csrt,kcf,mil --seeds 3 --jobs 2 --out "$RUNS" --no-report
-covviz report "$RUNS" --out docs/results.md
+# The default likelihood's ablation: each change alone and together, seeds 0-5, and its cost (appended to the report).
+python benchmarks/ablation.py "$ROOT" --out "$RUNS-ablation" --seeds 6 --jobs 2 --md "$RUNS-ablation/ablation.md"
+covviz report "$RUNS" --out docs/results.md --append "$RUNS-ablation/ablation.md"
 echo "wrote docs/results.md and docs/img/bench_*.png from $RUNS"

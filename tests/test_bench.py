@@ -254,6 +254,19 @@ def test_report_out_elsewhere_links_figures_relatively(results, tmp_path):
     assert (md.parent / rel_root).resolve() == Path(manifest["root"]).resolve()
 
 
+def test_report_appends_markdown_files_as_they_are(results, tmp_path, capsys):
+    extra = tmp_path / "ablation.md"
+    extra.write_text("## Ablation\n\n| a | b |\n|---|---|\n| 1 | 2 |\n")
+    md = tmp_path / "out.md"
+    assert main(["report", str(results), "--out", str(md), "--append", str(extra)]) == 0
+    text = md.read_text()
+    plain = write_report(results, tmp_path / "plain.md").read_text()
+    assert text == plain.rstrip("\n") + "\n\n" + extra.read_text().strip() + "\n"
+    # A missing file is an error before anything is written: the report stays as it was.
+    assert main(["report", str(results), "--out", str(md), "--append", str(tmp_path / "nope.md")]) == 2
+    assert "nope.md" in capsys.readouterr().err and md.read_text() == text
+
+
 # --------------------------------------------------------------------------- #
 # resuming
 # --------------------------------------------------------------------------- #
