@@ -284,7 +284,7 @@ def patch_features(
     return F.reshape(N_FEATURES, n, 4, h * h).transpose(1, 2, 0, 3)
 
 
-def normalize_gradients(F: np.ndarray, power: float = 1.0) -> np.ndarray:
+def normalize_gradients(F: np.ndarray, power: float = 1.0, floor: float = 0.0) -> np.ndarray:
     """Features with their derivatives divided by the patch's mean: ``|Ix|, |Iy|, |grad I|`` by the mean
     ``|grad I|``, ``|Ixx|, |Iyy|`` by their mean, each to ``power`` (a new array).
 
@@ -297,11 +297,15 @@ def normalize_gradients(F: np.ndarray, power: float = 1.0) -> np.ndarray:
     the patch's own mean makes the descriptor invariant to that (and to the
     contrast), keeping the derivatives' spatial layout and correlations.
     A ``power`` below 1 keeps part of the absolute magnitude (how textured
-    the patch is).
+    the patch is). ``floor`` bounds the first derivatives' divisor from
+    below: the mean ``|grad I|`` is taken as at least ``floor``, so a
+    textureless patch keeps its small absolute derivatives instead of having
+    its noise amplified (the second derivatives' mean is floored at 1e-6 only:
+    a floor there, half of ``floor``, cost Surfer more than it gave VOT15_bag).
     """
     F = np.array(F, dtype=np.float32, copy=True)
     G = F if F.ndim == 4 else F[:, None]  # (n, regions, 9, P), a view
-    g1 = np.maximum(G[:, :, 5].astype(np.float64).mean(axis=(1, 2)), 1e-6) ** power
+    g1 = np.maximum(G[:, :, 5].astype(np.float64).mean(axis=(1, 2)), max(float(floor), 1e-6)) ** power
     g2 = np.maximum(G[:, :, 7:9].astype(np.float64).mean(axis=(1, 2, 3)), 1e-6) ** power
     G[:, :, 3:6] /= g1[:, None, None, None].astype(np.float32)
     G[:, :, 7:9] /= g2[:, None, None, None].astype(np.float32)

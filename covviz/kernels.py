@@ -462,7 +462,7 @@ def _regularize(C, eps):
 
 
 @_jit(_FM_FEAT)
-def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q, grad_normalize=0.0):
+def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q, grad_normalize=0.0, grad_floor=0.0):
     """Descriptors of one bordered patch ``B`` (S+2, S+2) float32.
 
     Writes ``C`` (9, 9) and, with ``quadrants``, ``Q`` (4, 9, 9). ``F``
@@ -471,7 +471,8 @@ def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q,
     first-derivative features are divided by the patch's mean ``|grad I|``
     to the power ``a`` and the second derivatives by theirs, as a congruence
     of the moments before regularisation (the numpy path's
-    :func:`covviz.features.normalize_gradients`).
+    :func:`covviz.features.normalize_gradients`); the mean ``|grad I|`` is
+    floored at ``grad_floor`` (and 1e-6), the second derivatives' at 1e-6.
     """
     g = B.shape[0]
     S = g - 2
@@ -515,7 +516,7 @@ def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q,
     g1 = 1.0
     g2 = 1.0
     if grad_normalize > 0:
-        g1 = max(r[5], 1e-6) ** -grad_normalize
+        g1 = max(r[5], max(grad_floor, 1e-6)) ** -grad_normalize
         g2 = max(0.5 * (r[7] + r[8]), 1e-6) ** -grad_normalize
         for a in range(d):
             ka = g1 if (a >= 3 and a <= 5) else (g2 if a >= 7 else 1.0)
@@ -534,7 +535,7 @@ def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q,
 
 
 @_jit(_FM_FEAT, entry=True)
-def _descriptors_from_patches(P, u, eps, gain_normalize, quadrants, C, Q, grad_normalize):
+def _descriptors_from_patches(P, u, eps, gain_normalize, quadrants, C, Q, grad_normalize, grad_floor):
     n, g, _ = P.shape
     S = g - 2
     F = np.empty((9, S * S if S % 2 else (S // 2) ** 2), dtype=np.float32)
@@ -543,11 +544,11 @@ def _descriptors_from_patches(P, u, eps, gain_normalize, quadrants, C, Q, grad_n
     r = np.empty(9)
     for i in range(n):
         _patch_descriptors(P[i], u, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0],
-                           grad_normalize)
+                           grad_normalize, grad_floor)
 
 
 @_jit(_FM_FEAT, entry=True)
-def _descriptors_from_frame(gray, A, q, u, eps, gain_normalize, quadrants, C, Q, grad_normalize):
+def _descriptors_from_frame(gray, A, q, u, eps, gain_normalize, quadrants, C, Q, grad_normalize, grad_floor):
     n = A.shape[0]
     g = q.shape[0]
     S = g - 2
@@ -566,7 +567,7 @@ def _descriptors_from_frame(gray, A, q, u, eps, gain_normalize, quadrants, C, Q,
     for i in range(n):
         _warp_patch(flat, H, W, A[i], q, B, idx, dx, dy, al, be)
         _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0],
-                           grad_normalize)
+                           grad_normalize, grad_floor)
 
 
 def _coordinates(S: int) -> np.ndarray:
@@ -581,7 +582,7 @@ def _outputs(n: int, quadrants: bool):
 
 
 def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants: bool = True,
-                     grad_normalize: float = 0.0):
+                     grad_normalize: float = 0.0, grad_floor: float = 0.0):
     """Descriptors of warped patches, as the numpy path computes them.
 
     Equal (within the tolerances of ``tests/test_kernels.py``) to
@@ -597,6 +598,9 @@ def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants
         Shrinkage of :func:`covviz.spd.regularize`.
     gain_normalize, quadrants : bool
         As in :class:`covviz.trackers.manifold.ManifoldConfig`.
+    grad_normalize, grad_floor : float
+        As in :class:`covviz.trackers.manifold.ManifoldConfig`
+        (:func:`covviz.features.normalize_gradients`' ``power`` and ``floor``).
 
     Returns
     -------
@@ -618,7 +622,7 @@ def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants
         raise ValueError(f"quadrants need an even patch side, got {S}")
     C, Q = _outputs(len(P), quadrants)
     _descriptors_from_patches(P, _coordinates(S), float(eps), bool(gain_normalize), bool(quadrants), C, Q,
-                              float(grad_normalize))
+                              float(grad_normalize), float(grad_floor))
     return C, (Q if quadrants else None)
 
 
@@ -639,7 +643,7 @@ def _affine(poses, base_wh, step) -> np.ndarray:
 
 def warp_descriptors_fast(
     gray, poses, base_wh, size: int = 32, step=1.0, eps: float = 1e-3, gain_normalize: bool = True,
-    quadrants: bool = True, grad_normalize: float = 0.0,
+    quadrants: bool = True, grad_normalize: float = 0.0, grad_floor: float = 0.0,
 ):
     """Descriptors at ``poses`` straight from the frame: warp, features and moments fused.
 
@@ -657,7 +661,7 @@ def warp_descriptors_fast(
         Patch side ``S``.
     step : float or (float, float)
         Downsampling factor of ``gray`` (see :func:`covviz.features.sample_grid`).
-    eps, gain_normalize, quadrants
+    eps, gain_normalize, quadrants, grad_normalize, grad_floor
         As in :func:`descriptors_fast`.
 
     Returns
@@ -676,7 +680,7 @@ def warp_descriptors_fast(
     q = (np.arange(-1, size + 1, dtype=np.float64) + 0.5) / size - 0.5  # features._unit_grid's coordinates
     C, Q = _outputs(len(A), quadrants)
     _descriptors_from_frame(g32, A, q, _coordinates(size), float(eps), bool(gain_normalize), bool(quadrants), C, Q,
-                            float(grad_normalize))
+                            float(grad_normalize), float(grad_floor))
     return C, (Q if quadrants else None)
 
 

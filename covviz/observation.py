@@ -234,6 +234,10 @@ class ObservationModel:
         this power (:func:`covviz.features.normalize_gradients`; 1: fully,
         0: not): descriptors that do not depend on how finely a region is
         sampled.
+    grad_floor : float
+        The floor of the mean ``|grad I|`` that divides the first derivatives
+        (:func:`covviz.features.normalize_gradients`' ``floor``; 0: only
+        1e-6): a textureless patch keeps its small absolute derivatives.
     smooth_sigma : float
         Gaussian smoothing of the (downsampled) frame, pixels; 0: none.
     likelihood_sigma : float
@@ -269,6 +273,7 @@ class ObservationModel:
     eps: float = 1e-3
     gain_normalize: bool = True
     grad_normalize: float = 0.0
+    grad_floor: float = 0.0
     smooth_sigma: float = 0.0
     likelihood_sigma: float = 0.5
     quadrant_weight: float = 1.0
@@ -283,6 +288,7 @@ class ObservationModel:
 
     def __post_init__(self):
         object.__setattr__(self, "grad_normalize", float(self.grad_normalize))
+        object.__setattr__(self, "grad_floor", float(self.grad_floor))
         object.__setattr__(self, "base_wh", (float(self.base_wh[0]), float(self.base_wh[1])))
         object.__setattr__(self, "step_xy", (float(self.step_xy[0]), float(self.step_xy[1])))
         object.__setattr__(self, "quadrant_reference", _frozen(self.quadrant_reference))
@@ -303,6 +309,7 @@ class ObservationModel:
         eps: float = 1e-3,
         gain_normalize: bool = True,
         grad_normalize: float = 0.0,
+        grad_floor: float = 0.0,
         smooth_sigma: float = 0.0,
         antialias: bool = True,
         quadrants: bool = True,
@@ -337,6 +344,7 @@ class ObservationModel:
             eps=eps,
             gain_normalize=gain_normalize,
             grad_normalize=grad_normalize,
+            grad_floor=grad_floor,
             smooth_sigma=smooth_sigma,
             likelihood_sigma=likelihood_sigma,
             quadrant_weight=quadrant_weight,
@@ -366,6 +374,7 @@ class ObservationModel:
             eps=config.eps,
             gain_normalize=config.gain_normalize,
             grad_normalize=float(getattr(config, "grad_normalize", 0.0)),
+            grad_floor=float(getattr(config, "grad_floor", 0.0)),
             smooth_sigma=config.smooth_sigma,
             antialias=config.antialias,
             quadrants=config.quadrants,
@@ -435,7 +444,9 @@ class ObservationModel:
         return (
             f"{self.patch_size}×{self.patch_size} patches of a {w:.0f}×{h:.0f} region at scale 1, {aa}, "
             f"{'gain-normalised' if self.gain_normalize else 'raw'} features"
-            f"{f' (derivatives normalised, power {self.grad_normalize:g})' if self.grad_normalize else ''}"
+            f"{f' (derivatives normalised, power {self.grad_normalize:g}' if self.grad_normalize else ''}"
+            f"{f', floor {self.grad_floor:g}' if (self.grad_normalize and self.grad_floor) else ''}"
+            f"{')' if self.grad_normalize else ''}"
             f", ε={self.eps:g}, "
             f"σ={self.likelihood_sigma:g}, "
             + (f"quadrant term (weight {self.quadrant_weight:g})" if self.quadrants else "the paper's likelihood")
@@ -525,7 +536,7 @@ class ObservationModel:
         t1 = time.perf_counter()
         F = patch_features(P, gain_normalize=self.gain_normalize, quadrants=self.quadrants)
         if self.grad_normalize > 0:
-            F = normalize_gradients(F, self.grad_normalize)
+            F = normalize_gradients(F, self.grad_normalize, self.grad_floor)
         t2 = time.perf_counter()
         if self.quadrants:
             C, Q = quadrant_covariances(F, self.eps)
@@ -545,7 +556,7 @@ class ObservationModel:
         t0 = time.perf_counter()
         C, Q = _kernels().warp_descriptors_fast(
             gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize,
-            self.quadrants, self.grad_normalize,
+            self.quadrants, self.grad_normalize, self.grad_floor,
         )
         t1 = time.perf_counter()
         d = q = None
@@ -658,12 +669,12 @@ class ObservationModel:
         if self.compiled:
             return _kernels().warp_descriptors_fast(
                 gray, poses, self.base_wh, self.patch_size, self._sample_step(), self.eps, self.gain_normalize, True,
-                self.grad_normalize,
+                self.grad_normalize, self.grad_floor,
             )
         P = warp_patches(gray, poses, self.base_wh, self.patch_size, 1, self._sample_step())
         F = patch_features(P, gain_normalize=self.gain_normalize, quadrants=True)
         if self.grad_normalize > 0:
-            F = normalize_gradients(F, self.grad_normalize)
+            F = normalize_gradients(F, self.grad_normalize, self.grad_floor)
         return quadrant_covariances(F, self.eps)
 
     def patches(self, gray: np.ndarray, poses) -> np.ndarray:

@@ -266,6 +266,8 @@ def test_pose_search_scores_what_the_likelihood_says(synth):
         ({"context_scale": 0.9}, "context_scale"),
         ({"context_weight": 1.0, "quadrants": False}, "quadrants"),
         ({"colour_weight": float("nan")}, "colour_weight"),
+        ({"grad_floor": -0.1}, "grad_floor"),
+        ({"grad_floor": float("inf")}, "grad_floor"),
     ],
 )
 def test_new_config_fields_are_validated(kwargs, match):
@@ -335,3 +337,51 @@ def test_frame_inputs_of_the_papers_likelihood_are_empty(synth):
     assert tr.model.frame_inputs(frames[1], tr.last_record.extras) == {}
     assert tr.model.frame_inputs(frames[1], None) == {}
     tr.close()
+
+
+def test_gradient_floor_bounds_the_normaliser(rng):
+    """``floor``: a patch whose mean ``|grad I|`` is below it has its first derivatives divided by the floor."""
+    from covviz.features import normalize_gradients, patch_features
+
+    P = rng.random((3, 18, 18), dtype=np.float32)
+    F = patch_features(P, gain_normalize=True, quadrants=True)
+    m1 = F[:, :, 5].astype(np.float64).mean(axis=(1, 2))
+    np.testing.assert_array_equal(normalize_gradients(F, 1.0, 0.0), normalize_gradients(F))
+    floor = 2.0 * m1.max()  # above every mean: the floor binds
+    G, G0 = normalize_gradients(F, 1.0, floor), normalize_gradients(F)
+    np.testing.assert_allclose(G[:, :, 3:6], F[:, :, 3:6] / np.float32(floor), rtol=1e-6)
+    np.testing.assert_array_equal(G[:, :, [0, 1, 2, 6, 7, 8]], G0[:, :, [0, 1, 2, 6, 7, 8]])  # second derivatives too
+    # below every mean: the floor changes nothing
+    np.testing.assert_array_equal(normalize_gradients(F, 1.0, 0.5 * m1.min()), G0)
+
+
+def test_gradient_floor_kernel_matches_the_numpy_path(synth):
+    """With a floor that binds at some poses, the kernel and the numpy path agree (as without a floor)."""
+    from covviz.features import patch_features, warp_patches
+
+    seq, frames = synth
+    x, y, w, h = seq.init_box
+    poses = np.array([[x + w / 2, y + h / 2, s, t] for s, t in ((1.0, 0.0), (0.8, 0.1), (1.3, -0.2))])
+    m0 = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(grad_normalize=0.0))
+    gray = m0.prepare(frames[2])
+    F = patch_features(warp_patches(gray, poses, m0.base_wh, 32, 1, m0._sample_step()), gain_normalize=True, quadrants=True)
+    levels = F[:, :, 5].astype(np.float64).mean(axis=(1, 2))
+    floor = float(np.median(levels))  # binds at some poses, not at others
+    assert levels.min() < floor < levels.max() or np.ptp(levels) == 0
+    cfg = {"grad_normalize": 1.0, "grad_floor": floor}
+    mj = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(**cfg))
+    mn = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(**cfg, jit=False))
+    assert mj.grad_floor == floor and mj.compiled and not mn.compiled
+    a, b = mj.observe(gray, poses), mn.observe(gray, poses)
+    np.testing.assert_allclose(a.descriptors, b.descriptors, rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(a.quadrants, b.quadrants, rtol=1e-4, atol=1e-6)
+    unfloored = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(grad_floor=0.0)).observe(
+        gray, poses)
+    assert not np.allclose(unfloored.descriptors, a.descriptors)
+
+
+def test_zero_gradient_floor_is_the_normalisation_of_before(synth):
+    """``grad_floor=0`` is the floor of 1e-6 of before: the same boxes as a tiny explicit floor."""
+    _, b0 = run(ManifoldConfig(n_particles=60, grad_floor=0.0), synth, 5)
+    _, b1 = run(ManifoldConfig(n_particles=60, grad_floor=1e-7), synth, 5)
+    np.testing.assert_array_equal(b0, b1)

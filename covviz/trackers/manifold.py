@@ -138,6 +138,15 @@ class ManifoldConfig:
         longer depends on how finely the region is sampled, which otherwise
         ties the box to the initial size (a shrinking target's derivatives
         per sample shrink with it). Not in the paper.
+    grad_floor : float
+        Floor of the patch mean ``|grad I|`` that ``grad_normalize`` divides
+        the first derivatives by (the second derivatives' mean is floored at
+        1e-6 only). Intensities are gain-normalised, so the level compares
+        across sequences: the ground-truth boxes' mean ``|grad I|`` is
+        ~0.2-0.3 on the textureless VOT15_bag, 0.25-0.45 on Surfer and
+        0.33-1.3 on the other dev sequences. A textured target is fully
+        normalised, a textureless one keeps its small absolute derivatives
+        rather than amplified noise. 0: no floor (only 1e-6). Non-negative.
     quadrants : bool
         Add the quadrant term to each particle's distance (see the module
         docstring). Not in the paper; ``False`` gives the paper's likelihood.
@@ -224,6 +233,7 @@ class ManifoldConfig:
     smooth_sigma: float = 0.0
     gain_normalize: bool = True
     grad_normalize: float = 1.0
+    grad_floor: float = 0.3
     quadrants: bool = True
     quadrant_weight: float = 1.0
     colour_weight: float = 10.0
@@ -260,6 +270,7 @@ class ManifoldConfig:
             "colour_rate",
             "colour_reliability",
             "grad_normalize",
+            "grad_floor",
             "context_weight",
             "context_scale",
             "quadrant_reliability",
@@ -309,7 +320,7 @@ class ManifoldConfig:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         if not 0 <= self.refine_fraction < 1:
             raise ValueError(f"refine_fraction must be in [0, 1), got {self.refine_fraction}")
-        for name in ("colour_reliability", "context_weight", "quadrant_ref_gate", "anchor_gate", "refine_noise", "rotation_step"):
+        for name in ("grad_floor", "colour_reliability", "context_weight", "quadrant_ref_gate", "anchor_gate", "refine_noise", "rotation_step"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be non-negative, got {getattr(self, name)}")
         if not self.context_scale > 1:
