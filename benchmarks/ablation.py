@@ -14,7 +14,8 @@ Usage:
 
 The variants (``VARIANTS``): the default of before issue 14 (the quadrant term:
 ``NEW_TERMS_OFF``), that plus each new term alone, all of them (the default,
-``ManifoldConfig()``), and ``manifold-paper`` (``PAPER_LIKELIHOOD``). These
+``ManifoldConfig()``), the default without the gradient floor, and ``manifold-paper``
+(``PAPER_LIKELIHOOD``). These
 machines are noisy: the costs are ratios measured in one run; the absolute
 figures name the machine they ran on.
 """
@@ -41,9 +42,11 @@ DEFAULT = ManifoldConfig()
 #: key -> (column title, tracker, ManifoldConfig fields over the defaults).
 VARIANTS: dict[str, tuple[str, str, dict]] = {
     "previous": ("previous default (quadrant term)", "manifold", dict(NEW_TERMS_OFF)),
-    "grad": ("+ derivative normalisation", "manifold", {**NEW_TERMS_OFF, "grad_normalize": DEFAULT.grad_normalize}),
+    "grad": ("+ derivative normalisation (floored)", "manifold",
+             {**NEW_TERMS_OFF, "grad_normalize": DEFAULT.grad_normalize}),
     "colour": ("+ colour term", "manifold", {**NEW_TERMS_OFF, "colour_weight": DEFAULT.colour_weight}),
     "default": ("both: the default", "manifold", {}),
+    "nofloor": ("the default, gradient floor off", "manifold", {"grad_floor": 0.0}),
     "paper": ("manifold-paper", "manifold-paper", {}),
 }
 SEED_SETS = {"Seeds 0–2 (decision)": (0, 1, 2), "Seeds 3–5 (confirmation)": (3, 4, 5)}
@@ -157,7 +160,8 @@ def main(argv=None) -> int:
           f"{len({s for a in auc.values() for s, _ in a})} sequences per seed, ± its standard deviation over the seeds. "
           "Each column is `covviz bench` of one `ManifoldConfig` (`benchmarks/ablation.py`, results in "
           f"`{args.out}/<variant>`): the previous default is `NEW_TERMS_OFF` (the quadrant term only), each change "
-          "alone is that plus one term, *both* is `ManifoldConfig()`, and `manifold-paper` is `PAPER_LIKELIHOOD`."),
+          "alone is that plus one change, *both* is `ManifoldConfig()` (derivative normalisation with its floor "
+          "`grad_floor`, and the colour term), and `manifold-paper` is `PAPER_LIKELIHOOD`."),
           ""]
     md += markdown_tables(auc, set(range(args.seeds)))
     if not args.no_cost:

@@ -28,14 +28,16 @@ their distances, the weight uses
 second order and costs Cholesky factorisations instead of eigensolvers. The
 paper's per-particle templates are unchanged.
 
-Issue 14 (not in the paper; measured in ``docs/tuning.md`` and
-``docs/ablation.md``). Two changes are on by default:
+Issue 14 (not in the paper; measured in ``docs/tuning.md`` and the ablation
+of ``docs/results.md``). Two changes are on by default:
 
 * **Derivative normalisation** (``grad_normalize``): the derivative
   features are divided by their patch mean. A derivative per patch sample
   depends on how finely the region is sampled, so without it a box kept the
   sampling density of the initial box: shrinking targets kept boxes too
-  large (Car1, Car4), growing ones too small (Surfer).
+  large (Car1, Car4), growing ones too small (Surfer). The mean ``|grad I|``
+  is floored (``grad_floor``) so that a textureless target's noise is not
+  magnified to unit scale (VOT15_bag).
 * **A foreground/background colour term** (``colour_weight``,
   :mod:`covviz.fgbg`): Staple-style colour histograms of the box and a ring
   around it, a separate factor of the likelihood.
