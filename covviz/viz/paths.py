@@ -20,6 +20,9 @@ The entity tree::
     trackers/<name>/metrics/...      Scalars: iou, center_error; SeriesPoints: drift, lost, recovered
     trackers/<name>/terms/share/<term>  Scalars: each likelihood term's share of d_eff² (weighted mean)
     trackers/<name>/terms/moved/<term>  Scalars: weight the term moved (total variation, with vs without it)
+    trackers/<name>/why/<series>     Scalars: the diagnosis per frame: d at the truth and the estimate, reach,
+                                     gap_<part> (each part of d_eff² at the truth minus at the estimate)
+    trackers/<name>/why/label/<label>  SeriesPoints: model / search / estimate failure frames
     trackers/<name>/timings/<stage>  Scalars: milliseconds per stage of the update
     trackers/<name>/tensors          Tensor (3, 9, 9): template, observed, difference, log space
     trackers/<name>/cloud/<kind>     Points2D: MDS of the template cloud (template, top, estimate, initial,

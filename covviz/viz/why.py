@@ -162,6 +162,10 @@ def log_evidence(rec: rr.RecordingStream, p: P.TrackerPaths, ev: FrameEvidence, 
         v = getattr(ev, key)
         if np.isfinite(v):
             rec.log(p.why_series(key), rr.Scalars(float(v)))
+    # Each part of d_eff² at the truth minus at the estimate (> 0: that part preferred the estimate's place).
+    for k, v in (ev.term_gaps or {}).items():
+        if np.isfinite(v):
+            rec.log(p.why_series(f"gap_{k}"), rr.Scalars(float(v)))
     if ev.label in LABEL_STYLE and np.isfinite(ev.best_truth):
         rec.log(p.why_label(ev.label), rr.Scalars(float(ev.best_truth)))
 
