@@ -847,8 +847,6 @@ def frame_list(text: str) -> tuple[int, ...]:
 
 
 def add_mds_parser(sub) -> argparse.ArgumentParser:
-    from covviz.viz.mds_figures import DEFAULT_FRAMES
-
     p = sub.add_parser(
         "mds",
         help="the paper's manifold figures (MDS of Riemannian distances)",
@@ -863,7 +861,7 @@ def add_mds_parser(sub) -> argparse.ArgumentParser:
     p.add_argument(
         "--frames",
         type=frame_list,
-        default=DEFAULT_FRAMES,
+        default=None,  # mds_figures.DEFAULT_FRAMES, resolved in cmd_mds: building the parser imports no scipy
         metavar="F[,F…]",
         help="1-based frames of the random-walk figure (default 1,101,201,501,801 as far as the sequence goes)",
     )
@@ -891,13 +889,13 @@ def cmd_mds(args) -> int:
 
 
 def _mds(args) -> int:
-    from covviz.viz.mds_figures import MDSFiguresConfig, random_walk_data, separation_data
+    from covviz.viz.mds_figures import DEFAULT_FRAMES, MDSFiguresConfig, random_walk_data, separation_data
 
     seq = open_sequence(args.sequence, box=args.box)
     if len(seq) < 2:
         raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
     cfg = MDSFiguresConfig(
-        frames=tuple(args.frames),
+        frames=tuple(DEFAULT_FRAMES if args.frames is None else args.frames),
         max_target=max(2, args.max_target),
         n_background=args.n_background,
         method=args.method,

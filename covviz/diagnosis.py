@@ -29,6 +29,7 @@ module constant; the config is saved with the results and in the recording.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import asdict, dataclass, field
 
@@ -294,25 +295,17 @@ class FrameEvidence:
         return out
 
 
-def _term_gaps(model, gray, truth_pose, est_pose, template, inputs: dict) -> dict[str, float]:
-    """Each part of ``d_eff²`` of ``template`` at the truth minus at the estimate (see ``FrameEvidence.term_gaps``)."""
-    ob = model.observe(gray, np.stack([truth_pose, est_pose]), np.stack([template, template]), **inputs)
-    d2 = np.asarray(ob.distances, dtype=np.float64) ** 2
-    gaps = {"descriptor": float(d2[0] - d2[1])}
-    weights = model.term_weights
-    for k, t in ob.terms.items():
-        gaps[k] = float(weights[k] * (t[0] - t[1]))
-    return gaps
-
-
 def _box_quadrant_means(gray: np.ndarray, box) -> tuple[np.ndarray, float]:
     """Mean grey of the four quadrants of an axis-aligned box, and of a ring one box wide around it."""
     H, W = gray.shape
     x, y, w, h = (float(v) for v in box)
+    if not all(map(math.isfinite, (x, y, w, h))):
+        return np.full(4, np.nan), float("nan")
 
     def mean(x0, y0, x1, y1):
-        a, b = int(np.clip(np.floor(x0), 0, W)), int(np.clip(np.ceil(x1), 0, W))
-        c, d = int(np.clip(np.floor(y0), 0, H)), int(np.clip(np.ceil(y1), 0, H))
+        # Python's min/max and math.floor/ceil: np.clip on scalars cost more than the means (6 per frame).
+        a, b = min(max(math.floor(x0), 0), W), min(max(math.ceil(x1), 0), W)
+        c, d = min(max(math.floor(y0), 0), H), min(max(math.ceil(y1), 0), H)
         if b <= a or d <= c:
             return np.nan, 0
         r = gray[c:d, a:b]
@@ -794,12 +787,13 @@ class Diagnoser:
                 cloud.append(np.asarray(rec.templates, dtype=np.float64)[sub])
             L = np.concatenate(cloud)
             inputs = model.frame_inputs(frame.image, rec.extras)  # every term update() weighed by
-            at_truth = model.template_scores(mg, truth_pose, L, **inputs)
-            at_est = model.template_scores(mg, est_pose, L, **inputs)
+            at_truth, parts_truth = model.template_scores(mg, truth_pose, L, **inputs, parts=True)
+            at_est, parts_est = model.template_scores(mg, est_pose, L, **inputs, parts=True)
             kw["d_truth"], kw["d_est"] = float(at_truth[0]), float(at_est[0])
             kw["best_truth"] = float(at_truth.min())
             kw["best_est"] = float(at_est.min())
-            kw["term_gaps"] = _term_gaps(model, mg, truth_pose, est_pose, L[0], inputs)
+            # Each part of d_eff² of the estimate's template (L[0]), at the truth minus at the estimate.
+            kw["term_gaps"] = {k: float(parts_truth[k][0] - parts_est[k][0]) for k in parts_truth}
             kw["label"] = self._label(kw)
         return FrameEvidence(**kw)
 

@@ -684,8 +684,8 @@ class ObservationModel:
 
     def template_scores(
         self, gray: np.ndarray, pose, templates, colour: fgbg.ColourMap | None = None,
-        quadrant_state: QuadrantState | None = None,
-    ) -> np.ndarray:
+        quadrant_state: QuadrantState | None = None, parts: bool = False,
+    ):
         """``d_eff`` of many log-space templates at one pose, ``(m,)``: what each would be weighed by there.
 
         One observation at ``pose``, then each template's distance to it (in
@@ -694,6 +694,9 @@ class ObservationModel:
         Equal to :meth:`likelihood_distances` with the pose repeated, without
         observing it ``m`` times (the diagnosis asks this at the truth and the
         estimate, for the whole template cloud).
+
+        With ``parts``, also the parts of ``d_eff²`` by name, ``(m,)`` each:
+        ``descriptor`` (``d²``), then each term, weighted (they add up to ``d_eff²``).
         """
         pose = np.asarray(pose, dtype=np.float64).reshape(1, 4)
         L = np.asarray(templates, dtype=np.float64).reshape(-1, N_FEATURES, N_FEATURES)
@@ -710,7 +713,12 @@ class ObservationModel:
                 c = np.broadcast_to(self.context_terms(ob.quadrants, q1), (len(L),))
         if colour is not None and self.colour:
             t = np.broadcast_to(self.colour_terms(colour, pose), (len(L),))
-        return self.likelihood_distance(d, terms=self.terms(q, t, quadrant_state, c))
+        terms = self.terms(q, t, quadrant_state, c)
+        d_eff = self.likelihood_distance(d, terms=terms)
+        if not parts:
+            return d_eff
+        weights = self.term_weights
+        return d_eff, {"descriptor": d * d, **{k: weights[k] * np.asarray(v) for k, v in terms.items()}}
 
     def descriptors(self, gray: np.ndarray, poses, executor=None, threads: int = 1) -> np.ndarray:
         """Descriptors ``(n, 9, 9)`` at ``poses`` of a prepared frame."""

@@ -326,6 +326,15 @@ def test_frame_inputs_say_what_update_weighed_by(synth, extra):
     for i in (0, 17):
         one = tr.model.template_scores(gray, rec.particle_poses[i], rec.templates[i][None], **inputs)
         np.testing.assert_allclose(one, rec.extras["likelihood_distances"][i : i + 1], rtol=1e-9)
+        # The parts of d_eff²: the template distance² and each weighted term, as update() weighed them.
+        d_eff, parts = tr.model.template_scores(gray, rec.particle_poses[i], rec.templates[i][None], **inputs,
+                                                parts=True)
+        np.testing.assert_array_equal(d_eff, one)
+        assert set(parts) == {"descriptor", *rec.extras["terms"]}
+        np.testing.assert_allclose(sum(parts.values()), d_eff**2, rtol=1e-12)
+        np.testing.assert_allclose(parts["descriptor"], rec.distances[i] ** 2, rtol=1e-9)
+        for k, t in rec.extras["terms"].items():
+            np.testing.assert_allclose(parts[k], rec.extras["term_weights"][k] * t[i], rtol=1e-9, atol=1e-12)
     tr.close()
 
 

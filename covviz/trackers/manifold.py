@@ -403,6 +403,8 @@ SEARCH_SPACE: dict[str, tuple[float, float, str]] = {
     "kinematics.pos_sigma.0": (0.01, 0.12, "log"),
     "kinematics.scale_sigma.0": (0.003, 0.03, "log"),
     "kinematics.velocity_decay": (0.5, 1.0, "linear"),
+    "colour_weight": (0.0, 30.0, "linear"),  # 0: off (the previous default, the paper)
+    "grad_floor": (0.0, 0.9, "linear"),  # 0: no floor
 }
 
 
