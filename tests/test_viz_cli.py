@@ -217,6 +217,18 @@ def test_mds_writes_a_recording_and_pngs(tmp_path):
         assert img is not None and img.std() > 10
 
 
+def test_mds_default_frames_are_the_papers_as_far_as_the_sequence_goes(tmp_path):
+    """Without --frames: 1, 101, 201, 501, 801 (the parser leaves them to the command, which imports the
+    figures only when it runs), cut to the sequence's length."""
+    seq = _tiny_otb(tmp_path / "Tiny")
+    code, out, err = run_main(
+        ["mds", str(seq), "--particles", "20", "--max-target", "6", "--n-background", "2", "--no-save", "--no-png",
+         "--no-progress"]
+    )
+    assert code == 0, err
+    assert out.rstrip().endswith("templates at frames 1"), out  # 101, 201, ... are past the 12 frames
+
+
 def test_mds_frames_must_be_one_based(capsys):
     with pytest.raises(SystemExit):
         cli.main(["mds", "--frames", "0,5"])
