@@ -695,11 +695,11 @@ _INVFACT = tuple(1.0 / math.factorial(j) for j in range(12))
 
 
 @_jit(_FM_DIST)
-def _lanes_symmul(A, B, out, m):
-    """``out = A @ B`` for each of ``m`` lanes of (9, 9, ·) arrays, ``A``, ``B`` symmetric and commuting.
+def _lanes_upper_abt(A, B, out, m):
+    """The upper triangle of ``A @ B.T`` for each of ``m`` lanes of (9, 9, ·) arrays, into ``out``.
 
-    ``A @ B`` is then symmetric: the upper triangle is computed as
-    ``out[i, j] = Σ_k A[i, k]·B[j, k]`` (rows of both, contiguous) and mirrored.
+    ``out[i, j] = Σ_k A[i, k]·B[j, k]`` for ``j ≥ i`` (rows of both, contiguous); the lower
+    triangle is left as it was. ``A @ B`` when ``B`` is symmetric.
     """
     for i in range(9):
         a = A[i]
@@ -712,6 +712,15 @@ def _lanes_symmul(A, B, out, m):
                     + a[4, l] * b[4, l] + a[5, l] * b[5, l] + a[6, l] * b[6, l] + a[7, l] * b[7, l]
                     + a[8, l] * b[8, l]
                 )
+
+
+@_jit(_FM_DIST)
+def _lanes_symmul(A, B, out, m):
+    """``out = A @ B`` for each of ``m`` lanes of (9, 9, ·) arrays, ``A``, ``B`` symmetric and commuting.
+
+    ``A @ B`` is then symmetric: the upper triangle (:func:`_lanes_upper_abt`) is mirrored.
+    """
+    _lanes_upper_abt(A, B, out, m)
     for i in range(9):
         for j in range(i):
             o = out[i, j]
@@ -897,18 +906,8 @@ def _template_distances(L, C, out, mats, vecs, k, act):
         # which only shifts every log-eigenvalue by 2c (added below).
         _lanes_expm_shifted(X, X2, X3, E, T, c, k, sc, m)
         _lanes_mul(E, Cb, T, m)  # T = E' C
-        # M = T E' = E' C E' (symmetric): upper triangle, into X (free now)
-        for i in range(9):
-            a = T[i]
-            for j in range(i, 9):
-                b = E[j]
-                o = X[i, j]
-                for l in range(m):
-                    o[l] = (
-                        a[0, l] * b[0, l] + a[1, l] * b[1, l] + a[2, l] * b[2, l] + a[3, l] * b[3, l]
-                        + a[4, l] * b[4, l] + a[5, l] * b[5, l] + a[6, l] * b[6, l] + a[7, l] * b[7, l]
-                        + a[8, l] * b[8, l]
-                    )
+        # M = T E' = E' C E' (symmetric): upper triangle, into X (free now); Jacobi reads only that
+        _lanes_upper_abt(T, E, X, m)
         _lanes_jacobi(X, m, 1e-14, 30, t_, s_, tau_, act)
         for l in range(m):
             acc = 0.0
