@@ -468,8 +468,9 @@ class ObservationModel:
     def frame_inputs(self, frame: np.ndarray, extras: dict | None) -> dict:
         """What the likelihood of ``frame`` depends on besides a pose and a template, from a record's ``extras``.
 
-        The colour map of the frame (from ``extras["colour_state"]``, the state
-        the tracker weighed this frame with) and the quadrant state
+        The colour map of the frame (``extras["colour_map"]``, the one the
+        tracker weighed this frame with; else computed from
+        ``extras["colour_state"]``) and the quadrant state
         (``extras["quadrant_state"]``), as keyword arguments of
         :meth:`likelihood_distances`, :meth:`template_scores` and
         :meth:`pose_search`: with them those say exactly what ``update()``
@@ -478,7 +479,9 @@ class ObservationModel:
         """
         extras = extras or {}
         out = {}
-        cmap = self.colour_map(frame, extras.get("colour_state"))
+        cmap = extras.get("colour_map") if self.colour else None
+        if cmap is None:
+            cmap = self.colour_map(frame, extras.get("colour_state"))
         if cmap is not None:
             out["colour"] = cmap
         if extras.get("quadrant_state") is not None and self.quadrants:

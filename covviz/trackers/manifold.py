@@ -493,7 +493,9 @@ class ManifoldTracker:
     * the online state the likelihood used this frame (frozen dataclasses,
       None when off): ``colour_state`` (:class:`covviz.fgbg.ColourModel`;
       ``model.colour_map(frame, state)`` then gives what
-      ``observe(..., colour=…)`` needs), ``quadrant_state``
+      ``observe(..., colour=…)`` needs), ``colour_map`` (that map of this
+      frame, :class:`covviz.fgbg.ColourMap`, as ``update()`` weighed by it),
+      ``quadrant_state``
       (:class:`~covviz.observation.QuadrantState`), ``anchor``
       (:class:`AnchorState`, the template walk's anchor);
     * ``pose_search``: the scale and rotation candidates scored at the
@@ -762,6 +764,7 @@ class ManifoldTracker:
                 "terms": ob.terms,
                 "term_weights": model.term_weights,
                 "colour_state": colour_state,
+                "colour_map": cmap,
                 "quadrant_state": qstate,
                 "anchor": anchor,
                 "pose_search": search,
