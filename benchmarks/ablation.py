@@ -33,8 +33,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from speed import machine, time_tracker
 
-from covviz.bench import bench
-from covviz.report import load_runs
+from covviz.experiments.bench import bench
+from covviz.experiments.report import load_runs
 from covviz.trackers.manifold import NEW_TERMS_OFF, ManifoldConfig, make, make_paper
 
 DEFAULT = ManifoldConfig()
@@ -107,7 +107,7 @@ def markdown_tables(auc: dict, seeds_avail: set[int]) -> list[str]:
 
 def cost_table(sequences: list[str], keys, frames: int, repeat: int) -> list[str]:
     """ms per update() of each variant at 600 particles, side by side (variants alternate within each pass)."""
-    from covviz.sequences import open_sequence
+    from covviz.data.sequences import open_sequence
 
     lines = ["| sequence (frame) | " + " | ".join(VARIANTS[k][0] for k in keys) + " | added by the new terms, share of the default's update() |",
              "|---|" + "---:|" * (len(keys) + 1)]

@@ -1,4 +1,4 @@
-"""The compiled kernels (covviz.kernels) against the numpy path, stage by stage, side by side.
+"""The compiled kernels (covviz.model.kernels) against the numpy path, stage by stage, side by side.
 
 Prints the machine, then:
 
@@ -15,7 +15,7 @@ Prints the machine, then:
 3. with ``--accuracy``, the largest errors of the kernels and of the numpy
    path against the definition evaluated in float64, on 10 real frames;
 4. with ``--cold``, the cold compile time: a fresh process with an empty numba
-   cache running :func:`covviz.kernels.warmup`.
+   cache running :func:`covviz.model.kernels.warmup`.
 
 The machine is usually shared and noisy: quote the ratios, and an absolute
 figure only with the CPU line printed above it.
@@ -59,9 +59,9 @@ def interleaved(fns: dict, repeat: int) -> dict:
 
 def stage_inputs(seq, frame: int, n: int, rng):
     """Grey frame, ``n`` poses around the ground truth, base size, templates and quadrant reference."""
-    from covviz import spd
-    from covviz.descriptor import quadrant_covariances
-    from covviz.features import patch_features, warp_patches
+    from covviz.model import spd
+    from covviz.model.descriptor import quadrant_covariances
+    from covviz.model.features import patch_features, warp_patches
     from covviz.trackers.base import to_gray
 
     f = seq.frame(frame)
@@ -79,9 +79,9 @@ def stage_inputs(seq, frame: int, n: int, rng):
 
 
 def print_stages(seq, n: int, repeat: int, rng) -> None:
-    from covviz import kernels
-    from covviz.descriptor import covariance, quadrant_covariances
-    from covviz.features import patch_features, warp_patches
+    from covviz.model import kernels
+    from covviz.model.descriptor import covariance, quadrant_covariances
+    from covviz.model.features import patch_features, warp_patches
     from covviz.trackers.manifold import quadrant_distances, riemann_distance_to_templates
 
     gray, poses, wh, L, ref, ref_ld = stage_inputs(seq, min(10, len(seq) - 1), n, rng)
@@ -150,7 +150,7 @@ def timed_pass(make, images, box):
 
 
 def print_updates(seq, n: int, frames: int, repeat: int, observe_threads: int) -> None:
-    from covviz import kernels
+    from covviz.model import kernels
     from covviz.trackers import make_tracker
     from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 
@@ -196,8 +196,8 @@ ACCURACY_FRAMES = (("Car4", 180), ("Car4", 300), ("Car4", 420), ("Crossing", 40)
 
 def oracle64(P: np.ndarray, eps: float):
     """Float64 descriptors ``(C, Q)`` of bordered patches from the definition (gain-normalised, quadrants)."""
-    from covviz import spd
-    from covviz.features import FEATURE_SCALE
+    from covviz.model import spd
+    from covviz.model.features import FEATURE_SCALE
 
     P = np.asarray(P, dtype=np.float64)
     P = P / np.maximum(P[:, 1:-1, 1:-1].mean(axis=(1, 2), keepdims=True), 1e-3)
@@ -222,10 +222,11 @@ def oracle64(P: np.ndarray, eps: float):
 
 def print_accuracy(folder: Path, rng) -> None:
     """Largest errors against :func:`oracle64` on real frames: the kernels and the numpy path."""
-    from covviz import kernels, spd
-    from covviz.descriptor import quadrant_covariances
-    from covviz.features import patch_features, warp_patches
-    from covviz.sequences import open_sequence
+    from covviz.model import kernels
+    from covviz.model import spd
+    from covviz.model.descriptor import quadrant_covariances
+    from covviz.model.features import patch_features, warp_patches
+    from covviz.data.sequences import open_sequence
     from covviz.trackers.base import to_gray
     from covviz.trackers.manifold import quadrant_distances, riemann_distance_to_templates
 
@@ -280,8 +281,8 @@ def print_accuracy(folder: Path, rng) -> None:
 
 
 def cold_compile_seconds() -> float:
-    """Seconds a fresh process with an empty numba cache spends in :func:`covviz.kernels.warmup`."""
-    code = "from covviz import kernels; print(kernels.kernels_cached(), kernels.warmup())"
+    """Seconds a fresh process with an empty numba cache spends in :func:`covviz.model.kernels.warmup`."""
+    code = "from covviz.model import kernels; print(kernels.kernels_cached(), kernels.warmup())"
     with tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache)
         env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
@@ -316,7 +317,7 @@ def main(argv=None) -> int:
     import cv2
     import numba
 
-    from covviz.sequences import open_sequence
+    from covviz.data.sequences import open_sequence
 
     seq = open_sequence(args.sequence)
     print(machine())

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from covviz.errors import InputError
-from covviz.sequences import IMAGE_EXTENSIONS, open_sequence
+from covviz.data.sequences import IMAGE_EXTENSIONS, open_sequence
 
 log = logging.getLogger("covviz")
 
@@ -395,7 +395,7 @@ def cmd_track(args) -> int:
 
 def _warm_kernels(trackers) -> None:
     """Compile the manifold tracker's kernels before the run (once per install; then loaded from the cache)."""
-    from covviz import kernels
+    from covviz.model import kernels
 
     if kernels.JIT_ENABLED and any(getattr(getattr(t, "config", None), "jit", False) for t in trackers):
         if kernels.kernels_cached():
@@ -459,7 +459,7 @@ def _q(path) -> str:
 
 
 def _track(args) -> int:
-    from covviz.diagnosis import Diagnoser
+    from covviz.diagnosis.drift import Diagnoser
     from covviz.trackers.base import check_init_box
 
     seq = open_sequence(args.sequence, box=args.box)
@@ -490,7 +490,7 @@ def _track(args) -> int:
 
 def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> int:
     from covviz.metrics import nothing_to_score
-    from covviz.results import ResultWriter
+    from covviz.experiments.results import ResultWriter
     from covviz.runner import FreeSpaceGuard, ResultCollector, run_many
     from covviz.signals import exit_code
 
@@ -695,7 +695,7 @@ def add_cluster_args(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_bench(args) -> int:
-    from covviz.bench import bench
+    from covviz.experiments.bench import bench
 
     config = read_config(args.config, args.trackers.split(","))
     t0 = time.perf_counter()
@@ -787,7 +787,7 @@ def add_tune_parser(sub) -> argparse.ArgumentParser:
 
 
 def cmd_tune(args) -> int:
-    from covviz.tune import print_summary, tune
+    from covviz.experiments.tune import print_summary, tune
 
     base = read_config(args.config, [args.tracker])
     summary = tune(
@@ -812,7 +812,7 @@ def cmd_tune(args) -> int:
 
 
 def cmd_report(args) -> int:
-    from covviz.report import write_report
+    from covviz.experiments.report import write_report
 
     path = write_report(args.dir, args.out, append=args.append)
     print(f"report: {path}")

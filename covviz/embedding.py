@@ -5,7 +5,7 @@ multidimensional scaling (MDS) of their affine-invariant distance matrix. This
 module holds the pure maths (no plotting, no rerun):
 
 * :func:`distance_matrix` — pairwise Riemannian distances, in batches
-  (:func:`covviz.spd.pairwise_distance`);
+  (:func:`covviz.model.spd.pairwise_distance`);
 * :func:`classical_mds` — Torgerson's classical MDS (double centring and the
   top eigenvectors): deterministic, one partial ``eigh``. Our own, not
   scikit-learn's ``ClassicalMDS`` (1.8+): that one takes every eigenpair and
@@ -40,7 +40,7 @@ from collections.abc import Hashable, Sequence
 import numpy as np
 from scipy.linalg import eigh, orthogonal_procrustes
 
-from covviz.spd import pairwise_distance
+from covviz.model.spd import pairwise_distance
 
 __all__ = [
     "AlignedMDS",

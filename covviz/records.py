@@ -9,7 +9,7 @@ Conventions
 -----------
 * Boxes are ``x, y, w, h`` in pixels, top-left origin, **0-based** continuous
   coordinates: pixel ``(i, j)`` covers ``[j, j+1) x [i, i+1)``. OTB files are
-  1-based; :mod:`covviz.sequences` converts on read and on write.
+  1-based; :mod:`covviz.data.sequences` converts on read and on write.
 * Poses are ``cx, cy, scale, theta``: the centre in pixels, a scale factor
   relative to the initial box and a rotation in radians. Offsets ``(u, v)`` of
   the region are mapped to the image by ``R(theta) = [[cos, -sin], [sin, cos]]``
@@ -93,7 +93,7 @@ class FrameRecord:
         :class:`covviz.trackers.manifold.ManifoldTracker`).
     model : object, optional
         On the init record (index 0) of a covariance tracker: its frozen
-        :class:`~covviz.observation.ObservationModel`, which observers use to
+        :class:`~covviz.model.observation.ObservationModel`, which observers use to
         compute what the tracker would observe at other poses (likelihood
         maps, the drift diagnosis) without calling the tracker.
     """

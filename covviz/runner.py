@@ -15,7 +15,7 @@ and a stop signal that arrives meanwhile waits until they are done
 (:func:`covviz.signals.shielded`).
 
 An observer that keeps files up to date while the run goes (the results
-writer, :class:`covviz.results.ResultWriter`) also has ``on_progress(results)``
+writer, :class:`covviz.experiments.results.ResultWriter`) also has ``on_progress(results)``
 and a ``progress_seconds`` period: the runner calls it with the results of the
 frames done so far (``interrupted`` True) at most that often.
 """
@@ -34,7 +34,7 @@ from collections.abc import Sequence as Seq
 import numpy as np
 
 from covviz.errors import WriteError
-from covviz.frames import Frame, Sequence
+from covviz.data.frames import Frame, Sequence
 from covviz.records import FrameRecord, RunResult
 from covviz.signals import shielded
 

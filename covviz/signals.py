@@ -10,7 +10,7 @@ the first one started (two Ctrl-Cs 20 ms apart used to lose the results).
 While the results of a run are being written (:func:`shielded`, used by the
 runner around the observers' ``on_end``) a first signal is held back, and
 raised when the writing is done. SIGKILL cannot be caught: what survives it is
-what the run had already written (see :mod:`covviz.results` and the README).
+what the run had already written (see :mod:`covviz.experiments.results` and the README).
 
 Outside :func:`stop_signals` (library use, tests), nothing changes: Python's
 own Ctrl-C handling applies and :func:`shielded` does nothing.

@@ -116,7 +116,7 @@ def global_random_uses(tree: ast.Module) -> list[tuple[int, str]]:
 
 def test_sources_found():
     names = {rel(p) for p in SOURCES}
-    assert {"covviz/spd.py", "covviz/trackers/manifold.py", "covviz/cli.py"} <= names
+    assert {"covviz/model/spd.py", "covviz/trackers/manifold.py", "covviz/cli.py"} <= names
 
 
 @pytest.mark.parametrize("path", [p for p in SOURCES if not may_import_rerun(p)], ids=rel)
@@ -166,7 +166,7 @@ def core_modules() -> list[str]:
 
 def test_core_modules_import_without_rerun():
     mods = core_modules()
-    assert "covviz.trackers.manifold" in mods and "covviz.spd" in mods and "covviz.cli" in mods
+    assert "covviz.trackers.manifold" in mods and "covviz.model.spd" in mods and "covviz.cli" in mods
     code = (
         "import importlib, sys\n"
         f"for m in {mods!r}:\n"
@@ -187,10 +187,10 @@ EXTRA_MODULES = ("dask", "distributed", "optuna")
 
 
 def test_the_core_and_the_cli_load_no_cluster_extra():
-    """Importing every module (covviz.cluster and covviz.tune included) and building the CLI loads
+    """Importing every module (covviz.experiments.cluster and covviz.experiments.tune included) and building the CLI loads
     neither Dask nor Optuna: the core install stays as light as without the extra."""
     mods = core_modules()
-    assert "covviz.cluster" in mods and "covviz.tune" in mods
+    assert "covviz.experiments.cluster" in mods and "covviz.experiments.tune" in mods
     code = (
         "import importlib, sys\n"
         f"for m in {mods!r}:\n"
@@ -205,10 +205,10 @@ def test_the_core_and_the_cli_load_no_cluster_extra():
 
 
 def test_numba_loads_only_with_the_kernels():
-    """numba (and its ~1 s of import) is pulled in by covviz.kernels alone, at the first compiled call:
+    """numba (and its ~1 s of import) is pulled in by covviz.model.kernels alone, at the first compiled call:
     every other module, and the CLI's --help, load without it."""
-    mods = [m for m in core_modules() if m != "covviz.kernels"]
-    assert "covviz.observation" in mods and "covviz.trackers.manifold" in mods
+    mods = [m for m in core_modules() if m != "covviz.model.kernels"]
+    assert "covviz.model.observation" in mods and "covviz.trackers.manifold" in mods
     code = (
         "import importlib, sys\n"
         f"for m in {mods!r}:\n"
@@ -313,7 +313,7 @@ def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 def test_no_import_cycles():
     graph = {name: imported_modules(name, parse(p)) for name, p in MODULES.items()}
-    assert "covviz.bench" in graph["covviz.cli"]  # the graph sees lazy imports inside functions
+    assert "covviz.experiments.bench" in graph["covviz.cli"]  # the graph sees lazy imports inside functions
     cycles = import_cycles(graph)
     detail = "; ".join(
         " <-> ".join(c) + " (" + ", ".join(f"{a} -> {sorted(graph[a] & set(c))}" for a in c) + ")" for c in cycles

@@ -20,9 +20,9 @@ import pytest
 from test_bench import write_otb
 
 import covviz
-from covviz.bench import BenchError, bench, lock_results_folder
+from covviz.experiments.bench import BenchError, bench, lock_results_folder
 from covviz.cli import main
-from covviz.results import load_result
+from covviz.experiments.results import load_result
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
@@ -92,7 +92,7 @@ def alive(pid: int) -> bool:
 
 
 class Killer(threading.Thread):
-    """SIGKILLs the job process of ``label`` (``python -m covviz.jobs LABEL``) the first ``times`` it appears."""
+    """SIGKILLs the job process of ``label`` (``python -m covviz.experiments.jobs LABEL``) the first ``times`` it appears."""
 
     def __init__(self, label: str, times: int = 1, after: float = 0.2):
         super().__init__(daemon=True)
@@ -105,7 +105,7 @@ class Killer(threading.Thread):
         seen: dict[int, float] = {}
         while not self.stop.is_set() and len(self.killed) < self.times:
             for pid, cmd in descendants(me).items():
-                if cmd.rstrip().endswith(f"covviz.jobs {self.label}") and pid not in self.killed:
+                if cmd.rstrip().endswith(f"covviz.experiments.jobs {self.label}") and pid not in self.killed:
                     seen.setdefault(pid, time.monotonic())
                     if time.monotonic() - seen[pid] >= self.after:
                         os.kill(pid, signal.SIGKILL)

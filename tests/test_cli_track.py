@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from covviz import cli
-from covviz.sequences import SyntheticSequence
+from covviz.data.sequences import SyntheticSequence
 
 FRAMES = 15
 PARTICLES = 100
@@ -269,7 +269,7 @@ def test_error_inside_tracker_keeps_the_frames_done(tmp_path, monkeypatch):
     # A tracker that breaks on its 6th update: the error propagates (it is a bug, not bad input),
     # but the boxes of the frames before it are on disk, readable, and marked interrupted.
     from covviz import trackers
-    from covviz.results import load_result
+    from covviz.experiments.results import load_result
     from covviz.trackers.base import IdentityTracker
 
     class Breaks(IdentityTracker):
@@ -289,7 +289,7 @@ def test_value_error_inside_tracker_is_a_bug_not_bad_input(tmp_path, monkeypatch
     # Only validation errors (covviz.errors.InputError) are "bad input, exit 2": a ValueError raised
     # by a tracker in the middle of a run escapes main() (traceback, exit 1), results kept.
     from covviz import trackers
-    from covviz.results import load_result
+    from covviz.experiments.results import load_result
     from covviz.trackers.base import IdentityTracker
 
     class Breaks(IdentityTracker):

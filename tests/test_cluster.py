@@ -32,7 +32,7 @@ from test_bench import write_otb
 from test_bench_faults import descendants
 
 import covviz
-from covviz.bench import bench
+from covviz.experiments.bench import bench
 from covviz.cli import main
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
@@ -93,7 +93,7 @@ class DaskProcesses:
     def worker_processes(self) -> list[int]:
         """The worker processes (children of the nannies)."""
         return [pid for w in self.workers for pid, cmd in descendants(w.pid).items()
-                if "covviz.jobs" not in cmd and _ppid(pid) == w.pid]
+                if "covviz.experiments.jobs" not in cmd and _ppid(pid) == w.pid]
 
     def stop(self) -> None:
         for p in [*self.workers, self.scheduler]:
@@ -156,7 +156,7 @@ def test_a_worker_killed_mid_run(root, local, dask_procs, tmp_path):
     def killer():
         while not stop.is_set() and not killed:
             for pid in dask_procs.worker_processes():
-                if any("covviz.jobs" in cmd for cmd in descendants(pid).values()):
+                if any("covviz.experiments.jobs" in cmd for cmd in descendants(pid).values()):
                     time.sleep(0.2)
                     os.kill(pid, signal.SIGKILL)
                     killed.append(pid)
@@ -193,7 +193,7 @@ def test_local_cluster(root, local, tmp_path, capsys):
 
 
 def test_cluster_errors_are_one_line(root, tmp_path, capsys, monkeypatch):
-    import covviz.cluster as cl
+    import covviz.experiments.cluster as cl
 
     monkeypatch.setattr(cl, "CONNECT_TIMEOUT", 2)
     argv = ["bench", str(root), "--out", str(tmp_path / "o"), "--trackers", "identity", "--no-progress"]

@@ -1,4 +1,4 @@
-"""Tests for :mod:`covviz.descriptor`: the regularised 9×9 region covariance.
+"""Tests for :mod:`covviz.model.descriptor`: the regularised 9×9 region covariance.
 
 Oracles: ``np.cov`` of features recomputed here in float64 from an explicit
 crop of the image, and hand-built images whose feature statistics are known in
@@ -14,8 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from covviz.descriptor import DEFAULT_EPS, QUADRANTS, covariance, descriptors, quadrant_covariances
-from covviz.features import FEATURE_SCALE, patch_features, warp_patches
+from covviz.model.descriptor import DEFAULT_EPS, QUADRANTS, covariance, descriptors, quadrant_covariances
+from covviz.model.features import FEATURE_SCALE, patch_features, warp_patches
 
 S = 32
 D = 9
@@ -312,8 +312,8 @@ def test_gain_normalisation_makes_descriptors_illumination_invariant(rng):
     # I -> g·I rescales intensity and derivative features; with gain_normalize every one of them is
     # divided by the patch mean, so the descriptor must not move (up to float32 rounding), while the
     # paper's plain features move by a large Riemannian distance.
-    from covviz.descriptor import descriptors
-    from covviz.spd import distance_riemann
+    from covviz.model.descriptor import descriptors
+    from covviz.model.spd import distance_riemann
 
     img = (0.2 + 0.6 * rng.random((120, 160))).astype(np.float32)
     poses = np.array([[80.0, 60.0, 1.0, 0.0], [70.0, 50.0, 1.2, 0.3]])
@@ -369,7 +369,7 @@ def test_quadrants_see_where_things_are_and_the_whole_does_not(rng):
     descriptors tell them apart only through the coordinate covariances
     (d ≈ 1.6); the quadrants that hold the square in one patch and not in the
     other differ ten times more (d ≈ 17)."""
-    from covviz.spd import distance_riemann
+    from covviz.model.spd import distance_riemann
 
     P = np.full((2, S + 2, S + 2), 0.2, np.float32)
     P += 0.01 * rng.random(P.shape).astype(np.float32)
@@ -399,12 +399,12 @@ def test_float32_cancellation_never_leaves_a_descriptor_short_of_spd(rng):
     assert np.all(np.linalg.eigvalsh(C)[:, 0] > 0)
     np.linalg.cholesky(C)
     healthy = rng.standard_normal((8, d, N)).astype(np.float32)
-    from covviz.descriptor import _finish, _moments
+    from covviz.model.descriptor import _finish, _moments
 
     M, s = _moments(healthy)
     mu = s / N
     raw = (M - N * mu[..., :, None] * mu[..., None, :]) / (N - 1)
     raw = 0.5 * (raw + np.swapaxes(raw, -1, -2))
-    from covviz.spd import regularize
+    from covviz.model.spd import regularize
 
     np.testing.assert_array_equal(_finish(M, s, N, 1e-3), regularize(raw, 1e-3))

@@ -1,4 +1,4 @@
-"""Tests of the drift diagnosis (covviz/diagnosis.py): labels, rules, suspects, scoring.
+"""Tests of the drift diagnosis (covviz/diagnosis/drift.py): labels, rules, suspects, scoring.
 
 The rules are checked on hand-made evidence (each rule alone, and the order in which they are
 tried); the whole pipeline on the synthetic failure scenarios is tested in test_scenarios.py.
@@ -11,8 +11,8 @@ import json
 import numpy as np
 import pytest
 
-from covviz import spd
-from covviz.diagnosis import (
+from covviz.model import spd
+from covviz.diagnosis.drift import (
     CAUSES,
     LABELS,
     Diagnoser,
@@ -22,7 +22,7 @@ from covviz.diagnosis import (
     score_suspects,
 )
 from covviz.runner import run_many
-from covviz.sequences import SyntheticConfig, SyntheticSequence
+from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers.base import IdentityTracker
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 
@@ -186,7 +186,7 @@ def test_diagnoser_scores_the_truth_through_the_trackers_own_model():
     assert dg.states[0].model is tr.model and ev.label in LABELS
     m = tr.model
     g = m.prepare(seq.frame(4).image)
-    from covviz.observation import box_to_pose
+    from covviz.model.observation import box_to_pose
 
     # Every term update() weighed by: the default likelihood has the colour term, whose map
     # comes from the frame and the colour state the record carries.

@@ -1,4 +1,4 @@
-"""Tests for :mod:`covviz.dynamics`: the kinematic model and the template random walk.
+"""Tests for :mod:`covviz.model.dynamics`: the kinematic model and the template random walk.
 
 Statistical tests use many draws and a tolerance of 5 standard deviations of
 the estimator (binomial for frequencies, ``σ/√(2n)`` for a sample standard
@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from covviz.dynamics import KinematicModel, propagate_kinematics, symmetric_noise, template_walk
+from covviz.model.dynamics import KinematicModel, propagate_kinematics, symmetric_noise, template_walk
 
 X, Y, VX, VY, SCALE, THETA = range(6)
 Z = 5.0  # tolerance in standard deviations of the estimator

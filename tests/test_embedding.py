@@ -14,7 +14,7 @@ from covviz.embedding import (
     smacof_mds,
     stress,
 )
-from covviz.spd import distance_riemann, expm
+from covviz.model.spd import distance_riemann, expm
 
 
 def _pairwise(X: np.ndarray) -> np.ndarray:

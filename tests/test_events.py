@@ -1,11 +1,11 @@
-"""Tests of the event detector (covviz/events.py): storms, loss, drift onset, recovery."""
+"""Tests of the event detector (covviz/diagnosis/events.py): storms, loss, drift onset, recovery."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from covviz.events import EventConfig, EventDetector, drift_onset
+from covviz.diagnosis.events import EventConfig, EventDetector, drift_onset
 
 
 # --------------------------------------------------------------------------- #

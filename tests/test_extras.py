@@ -19,7 +19,7 @@ def without_extra(monkeypatch):
             raise ImportError(f"No module named {name!r}")
         return real(name, *a, **k)
 
-    monkeypatch.setattr("covviz.cluster.importlib.import_module", fake)
+    monkeypatch.setattr("covviz.experiments.cluster.importlib.import_module", fake)
 
 
 @pytest.mark.parametrize("command", ["bench", "tune"])

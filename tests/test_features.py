@@ -1,4 +1,4 @@
-"""Tests for :mod:`covviz.features`: pose geometry, the warp and the 9 per-pixel features.
+"""Tests for :mod:`covviz.model.features`: pose geometry, the warp and the 9 per-pixel features.
 
 Oracles are independent of the implementation: explicit crops of the image
 (on integer-aligned boxes the warp is an exact crop), features recomputed here
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from covviz.features import (
+from covviz.model.features import (
     FEATURE_NAMES,
     FEATURE_SCALE,
     N_FEATURES,

@@ -15,7 +15,7 @@ from scipy.special import logsumexp
 
 from covviz.metrics import evaluate
 from covviz.runner import run
-from covviz.sequences import OTBSequence, SyntheticConfig, SyntheticSequence
+from covviz.data.sequences import OTBSequence, SyntheticConfig, SyntheticSequence
 from covviz.trackers.base import IdentityTracker
 from covviz.trackers.ipca import (
     AppearanceModel,

@@ -1,11 +1,11 @@
-"""Tests for :mod:`covviz.kernels`: the compiled fast path against references.
+"""Tests for :mod:`covviz.model.kernels`: the compiled fast path against references.
 
 References, in order of strictness:
 
-* the warp: bit for bit :func:`covviz.features.warp_patches` (cv2.remap);
+* the warp: bit for bit :func:`covviz.model.features.warp_patches` (cv2.remap);
 * the distance kernels, fed the same descriptors: the numpy functions, 1e-10;
 * the descriptors: a float64 oracle written here from the definition (the
-  features of :func:`covviz.features.patch_features` in float64, gain
+  features of :func:`covviz.model.features.patch_features` in float64, gain
   normalisation in float64, two-pass float64 covariances), to 1e-5 relative
   (per matrix, Frobenius) and the distances they give to 1e-5 absolute. The
   numpy path is compared too, at its own accuracy: its float32 raw moments
@@ -29,10 +29,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from covviz import kernels, spd
-from covviz.descriptor import covariance, quadrant_covariances
-from covviz.features import FEATURE_SCALE, patch_features, warp_patches
-from covviz.sequences import open_sequence
+from covviz.model import kernels
+from covviz.model import spd
+from covviz.model.descriptor import covariance, quadrant_covariances
+from covviz.model.features import FEATURE_SCALE, patch_features, warp_patches
+from covviz.data.sequences import open_sequence
 from covviz.trackers.base import to_gray
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 
@@ -51,11 +52,11 @@ DIST_ATOL = 1e-5  # distances, absolute
 def oracle(P: np.ndarray, quadrants: bool = True, gain_normalize: bool = True):
     """Float64 descriptors of bordered patches from the definition: ``(C, Q)`` (``Q`` None without quadrants).
 
-    The features of :func:`covviz.features.patch_features` (coordinates in
+    The features of :func:`covviz.model.features.patch_features` (coordinates in
     ``[-½, ½]``, intensity, ``|Ix|, |Iy|``, magnitude, ``atan(|Ix|/|Iy|)``,
     ``|Ixx|, |Iyy|``, central differences, scaled by ``FEATURE_SCALE``),
     computed in float64 from the float32 patch, and two-pass covariances
-    regularised as :func:`covviz.spd.regularize`.
+    regularised as :func:`covviz.model.spd.regularize`.
     """
     P = np.asarray(P, dtype=np.float64)
     if gain_normalize:
@@ -161,11 +162,11 @@ def test_no_jit_environment_selects_the_numpy_path():
     """``COVVIZ_NO_JIT=1``: JIT_ENABLED is False and the tracker's descriptors are the numpy path's, bit for bit."""
     code = (
         "import numpy as np\n"
-        "from covviz import kernels\n"
-        "from covviz.sequences import SyntheticSequence\n"
+        "from covviz.model import kernels\n"
+        "from covviz.data.sequences import SyntheticSequence\n"
         "from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker\n"
-        "from covviz.features import warp_patches, patch_features, normalize_gradients\n"
-        "from covviz.descriptor import quadrant_covariances\n"
+        "from covviz.model.features import warp_patches, patch_features, normalize_gradients\n"
+        "from covviz.model.descriptor import quadrant_covariances\n"
         "from covviz.trackers.base import to_gray\n"
         "import sys\n"
         "assert kernels.JIT_ENABLED is False and 'numba' not in sys.modules\n"
@@ -431,7 +432,7 @@ def test_results_are_the_same_on_threads_and_repeats(rng):
 # --------------------------------------------------------------------------- #
 @pytest.mark.parametrize("quadrants", [True, False])
 def test_tracker_observes_the_same_with_and_without_jit(monkeypatch, quadrants):
-    from covviz.sequences import SyntheticSequence
+    from covviz.data.sequences import SyntheticSequence
 
     seq = SyntheticSequence()
     out = {}

@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from covviz import spd
-from covviz.features import pose_corners, pose_to_box
+from covviz.model import spd
+from covviz.model.features import pose_corners, pose_to_box
 from covviz.metrics import iou
-from covviz.observation import quadrant_term
+from covviz.model.observation import quadrant_term
 from covviz.records import STAGES, FrameRecord
-from covviz.sequences import SyntheticSequence
+from covviz.data.sequences import SyntheticSequence
 from covviz.trackers.base import IdentityTracker, Tracker, check_init_box
 from covviz.trackers.manifold import PAPER_LIKELIHOOD, ManifoldConfig, ManifoldTracker, make
 
@@ -447,7 +447,7 @@ def test_manifold_paper_is_the_tracker_without_quadrants(synth):
 def test_config_round_trips_through_json():
     import json
 
-    from covviz.dynamics import KinematicModel
+    from covviz.model.dynamics import KinematicModel
 
     cfg = ManifoldConfig(
         n_particles=123,

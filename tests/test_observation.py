@@ -1,4 +1,4 @@
-"""Tests of the frozen observation model (covviz/observation.py) and its use by the manifold tracker."""
+"""Tests of the frozen observation model (covviz/model/observation.py) and its use by the manifold tracker."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from covviz import spd
-from covviz.descriptor import quadrant_covariances
-from covviz.features import normalize_gradients, patch_features, warp_patches
-from covviz.observation import OBSERVE_CHUNK, ObservationModel, box_to_pose, quadrant_term
-from covviz.sequences import SyntheticSequence
+from covviz.model import spd
+from covviz.model.descriptor import quadrant_covariances
+from covviz.model.features import normalize_gradients, patch_features, warp_patches
+from covviz.model.observation import OBSERVE_CHUNK, ObservationModel, box_to_pose, quadrant_term
+from covviz.data.sequences import SyntheticSequence
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 
 

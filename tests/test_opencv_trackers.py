@@ -15,7 +15,7 @@ import pytest
 
 from covviz.metrics import center_error, iou
 from covviz.runner import run
-from covviz.sequences import SyntheticConfig, SyntheticSequence
+from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers import TRACKERS, Tracker, make_tracker
 from covviz.trackers import opencv as ocv
 
@@ -82,7 +82,7 @@ def run_in_fresh_process(name: str) -> np.ndarray:
     code = (
         "import json\n"
         "from covviz.runner import run\n"
-        "from covviz.sequences import SyntheticConfig, SyntheticSequence\n"
+        "from covviz.data.sequences import SyntheticConfig, SyntheticSequence\n"
         "from covviz.trackers import make_tracker\n"
         f"seq = SyntheticSequence(SyntheticConfig(n_frames={N_FRAMES}))\n"
         f"print(json.dumps(run(make_tracker({name!r}), seq).boxes.tolist()))\n"

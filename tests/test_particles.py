@@ -1,4 +1,4 @@
-"""Tests for :mod:`covviz.particles`: log-weights, ESS, resampling, the particle set.
+"""Tests for :mod:`covviz.model.particles`: log-weights, ESS, resampling, the particle set.
 
 Resampling is checked for what a particle filter needs: indices in range,
 unbiased counts (mean count of particle ``i`` is ``n·w_i``, within 5 standard
@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.special import logsumexp
 
-from covviz.particles import (
+from covviz.model.particles import (
     ParticleSet,
     effective_sample_size,
     log_likelihood,
@@ -25,7 +25,7 @@ from covviz.particles import (
     normalize_log_weights,
     systematic_resample,
 )
-from covviz.particles import (
+from covviz.model.particles import (
     logsumexp as cv_logsumexp,
 )
 

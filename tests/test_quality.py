@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from covviz import fgbg
-from covviz.dynamics import template_walk
-from covviz.observation import ObservationModel, QuadrantState, quadrant_term, update_quadrant_state
-from covviz.particles import logsumexp
-from covviz.sequences import SyntheticSequence
+from covviz.model import fgbg
+from covviz.model.dynamics import template_walk
+from covviz.model.observation import ObservationModel, QuadrantState, quadrant_term, update_quadrant_state
+from covviz.model.particles import logsumexp
+from covviz.data.sequences import SyntheticSequence
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker, _parabolic_step, make_paper
 
 D = 9
@@ -242,7 +242,7 @@ def test_pose_search_scores_what_the_likelihood_says(synth):
     gray = model.prepare(frames[0])
     x, y, w, h = seq.init_box
     pose = np.array([x + w / 2, y + h / 2, 1.0, 0.0])
-    from covviz.spd import logm
+    from covviz.model.spd import logm
 
     L0 = logm(model.descriptors(gray, pose[None]))[0]
     sp, sd, _rp, rd = model.pose_search(gray, pose, L0, scales=[0.8, 1.0, 1.25], rotations=[-0.1, 0.0, 0.1])
@@ -279,7 +279,7 @@ def test_new_config_fields_are_validated(kwargs, match):
 # derivative normalisation
 # --------------------------------------------------------------------------- #
 def test_normalized_gradients_have_unit_mean_in_both_layouts(rng):
-    from covviz.features import normalize_gradients, patch_features
+    from covviz.model.features import normalize_gradients, patch_features
 
     P = rng.random((3, 18, 18), dtype=np.float32)
     for quadrants in (False, True):
@@ -288,7 +288,7 @@ def test_normalized_gradients_have_unit_mean_in_both_layouts(rng):
         np.testing.assert_allclose(G[:, :, 5].mean(axis=(1, 2)), 1.0, rtol=1e-5)
         np.testing.assert_allclose(G[:, :, 7:9].mean(axis=(1, 2, 3)), 1.0, rtol=1e-5)
     # contrast no longer moves the derivative block: P and 0.5 + 0.5·(P − mean) differ only in I
-    from covviz.descriptor import covariance
+    from covviz.model.descriptor import covariance
 
     F1 = normalize_gradients(patch_features(P, gain_normalize=False))
     F2 = normalize_gradients(patch_features(0.5 * P + 0.25, gain_normalize=False))
@@ -350,7 +350,7 @@ def test_frame_inputs_of_the_papers_likelihood_are_empty(synth):
 
 def test_gradient_floor_bounds_the_normaliser(rng):
     """``floor``: a patch whose mean ``|grad I|`` is below it has its first derivatives divided by the floor."""
-    from covviz.features import normalize_gradients, patch_features
+    from covviz.model.features import normalize_gradients, patch_features
 
     P = rng.random((3, 18, 18), dtype=np.float32)
     F = patch_features(P, gain_normalize=True, quadrants=True)
@@ -366,7 +366,7 @@ def test_gradient_floor_bounds_the_normaliser(rng):
 
 def test_gradient_floor_kernel_matches_the_numpy_path(synth):
     """With a floor that binds at some poses, the kernel and the numpy path agree (as without a floor)."""
-    from covviz.features import patch_features, warp_patches
+    from covviz.model.features import patch_features, warp_patches
 
     seq, frames = synth
     x, y, w, h = seq.init_box

@@ -1,4 +1,4 @@
-"""Tests for :mod:`covviz.results`: run results on disk (OTB boxes + JSON)."""
+"""Tests for :mod:`covviz.experiments.results`: run results on disk (OTB boxes + JSON)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from covviz.metrics import evaluate
 from covviz.records import RunResult
-from covviz.results import FORMAT, ResultError, load_result, result_paths, save_result
+from covviz.experiments.results import FORMAT, ResultError, load_result, result_paths, save_result
 
 # Boxes are written with 2 decimals: half a unit of the last place, plus float slack.
 BOX_ATOL = 0.005 + 1e-9

@@ -32,9 +32,9 @@ import covviz
 from covviz import cli
 from covviz.errors import WriteError
 from covviz.records import RunResult
-from covviz.results import ResultWriter, box_lines, load_result, result_paths, save_result
+from covviz.experiments.results import ResultWriter, box_lines, load_result, result_paths, save_result
 from covviz.runner import FreeSpaceGuard, ResultCollector, run
-from covviz.sequences import (
+from covviz.data.sequences import (
     SyntheticConfig,
     SyntheticSequence,
     _jpeg_complete,
@@ -307,7 +307,7 @@ def test_enospc_is_one_write_error_and_leaves_no_part_file(tmp_path, monkeypatch
 
 def test_injected_enospc_mid_run_stops_it_with_one_line_and_keeps_the_last_write(tmp_path, monkeypatch):
     # The same as a real full disk, on any machine: the second write of the results fails.
-    from covviz import results
+    from covviz.experiments import results
 
     calls = {"n": 0}
     real = results._atomic_write
@@ -465,7 +465,7 @@ def test_frames_are_matched_to_ground_truth_by_number(tmp_path):
     gt = SyntheticSequence(SyntheticConfig(n_frames=8)).groundtruth
     assert len(seq) == 8 and seq.missing == [3] and seq.files[3].name == "0004.jpg"
     np.testing.assert_allclose(seq.frame(4).gt, gt[4], atol=0.01)  # 0005.jpg gets row 5, not row 4
-    with pytest.raises(covviz.sequences.SequenceError, match="0004.jpg: the file is missing"):
+    with pytest.raises(covviz.data.sequences.SequenceError, match="0004.jpg: the file is missing"):
         seq.frame(3)
 
 

@@ -7,7 +7,7 @@ import threading
 import pytest
 
 from covviz.runner import BackgroundObserver, ResultCollector, run
-from covviz.sequences import SyntheticConfig, SyntheticSequence
+from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers.base import IdentityTracker
 
 

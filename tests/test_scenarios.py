@@ -1,4 +1,4 @@
-"""Tests for :mod:`covviz.scenarios`: named synthetic failures, one cause each, at a known frame.
+"""Tests for :mod:`covviz.data.scenarios`: named synthetic failures, one cause each, at a known frame.
 
 The fast tests check the frames (deterministic; the injected element reaches
 the target at the onset and not before; the default synthetic sequence is
@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from covviz import cli
-from covviz.diagnosis import Diagnoser
-from covviz.events import LOST_IOU
+from covviz.diagnosis.drift import Diagnoser
+from covviz.diagnosis.events import LOST_IOU
 from covviz.metrics import iou
-from covviz.scenarios import CALM, CAUSES, SCENARIOS, Scenario, get_scenario, open_scenario
-from covviz.sequences import SequenceError, SyntheticSequence, open_sequence
+from covviz.data.scenarios import CALM, CAUSES, SCENARIOS, Scenario, get_scenario, open_scenario
+from covviz.data.sequences import SequenceError, SyntheticSequence, open_sequence
 from covviz.trackers.manifold import make
 
 NAMES = list(SCENARIOS)
@@ -257,7 +257,7 @@ def test_track_runs_a_scenario(tmp_path, capsys):
 def loss_frame(seq, sc: Scenario, seed: int):
     """First frame with IoU < LOST_IOU (None if none up to onset + window), the IoU so far, and the diagnoser.
 
-    The drift diagnosis (covviz.diagnosis.Diagnoser) watches the run as ``covviz track`` runs it.
+    The drift diagnosis (covviz.diagnosis.drift.Diagnoser) watches the run as ``covviz track`` runs it.
     """
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])  # as `covviz track --seed`
     tracker = make(rng=rng)

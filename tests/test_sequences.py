@@ -1,4 +1,4 @@
-"""Tests for :mod:`covviz.sequences`.
+"""Tests for :mod:`covviz.data.sequences`.
 
 All test data is built in ``tmp_path``: tiny PNG frames whose pixel values
 encode their index (PNG is lossless, so a frame read back can be identified
@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from covviz.sequences import (
+from covviz.data.sequences import (
     Frame,
     OTBSequence,
     Sequence,

@@ -1,4 +1,4 @@
-"""Tests for :mod:`covviz.spd`, the batched SPD geometry.
+"""Tests for :mod:`covviz.model.spd`, the batched SPD geometry.
 
 Organised the way pyRiemann tests its geometry (STYLE.md point 13):
 
@@ -34,7 +34,7 @@ from pyriemann.geometry import distance as pr_distance
 from pyriemann.geometry import mean as pr_mean
 from pyriemann.geometry import tangentspace as pr_tangent
 
-from covviz import spd
+from covviz.model import spd
 
 EPS = np.finfo(np.float64).eps
 SAFETY = 10.0
@@ -1230,7 +1230,7 @@ def test_regularize_rank_deficient_covariance(rng, eps):
 
 
 # --------------------------------------------------------------------------- #
-# regressions: bugs found by this suite and fixed in covviz/spd.py (Armijo step in mean_riemann,
+# regressions: bugs found by this suite and fixed in covviz/model/spd.py (Armijo step in mean_riemann,
 # differences of logs in pairwise logeuclid)
 # --------------------------------------------------------------------------- #
 def test_mean_riemann_converges_for_dispersed_matrices():

@@ -22,9 +22,9 @@ from test_bench import write_otb
 
 import covviz
 from covviz.cli import main
-from covviz.jobs import Job, JobOutput, Outcome
+from covviz.experiments.jobs import Job, JobOutput, Outcome
 from covviz.trackers.manifold import SEARCH_SPACE, ManifoldConfig
-from covviz.tune import TuneSettings, score_config
+from covviz.experiments.tune import TuneSettings, score_config
 
 ENV = {**os.environ, "PYTHONPATH": str(Path(covviz.__file__).resolve().parent.parent)}
 FRAMES = {"alpha": 8, "beta": 6}
@@ -76,7 +76,7 @@ def test_two_processes_share_one_sqlite_study(root, tmp_path, monkeypatch, capsy
     # the held-out scores are kept in the study: a second report (--trials 0) reruns nothing
     assert main(tune_argv(root, tmp_path / "out2", db, "--trials", "0")) == 0
     first = capsys.readouterr().out
-    monkeypatch.setattr("covviz.tune.score_config", lambda *a, **k: pytest.fail("re-ran a configuration"))
+    monkeypatch.setattr("covviz.experiments.tune.score_config", lambda *a, **k: pytest.fail("re-ran a configuration"))
     assert main(tune_argv(root, tmp_path / "out2", db, "--trials", "0")) == 0
     assert capsys.readouterr().out == first and "held-out seeds 1:" in first
     # the best config is ready for covviz track

@@ -17,7 +17,7 @@ import pytest
 from viz_helpers import boxes, read_recording, rrd_verify
 
 from covviz import cli
-from covviz.sequences import SyntheticConfig, SyntheticSequence, write_boxes
+from covviz.data.sequences import SyntheticConfig, SyntheticSequence, write_boxes
 from covviz.viz import paths as P
 
 FAST = ["--no-progress", "--particles", "30"]

@@ -9,7 +9,7 @@ from viz_helpers import boxes, last, read_recording, rrd_verify, scalar_series, 
 from covviz.metrics import center_error, iou
 from covviz.records import FrameRecord
 from covviz.runner import run_many
-from covviz.sequences import SyntheticConfig, SyntheticSequence
+from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers.base import IdentityTracker
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz import paths as P
@@ -272,7 +272,7 @@ def test_term_shares_properties():
 
 def test_heatmaps_equal_the_records(run):
     """Template, observed descriptor and difference, in log space, on their fixed colour scales."""
-    from covviz.spd import logm
+    from covviz.model.spd import logm
     from covviz.viz.why import heatmap_image
 
     t = run["temporal"]

@@ -97,8 +97,8 @@ from dataclasses import asdict, dataclass, field
 import cv2
 import numpy as np
 
-from covviz.features import REMAP_MAX_ROWS, remap_stacked
-from covviz.particles import effective_sample_size, normalize_log_weights
+from covviz.model.features import REMAP_MAX_ROWS, remap_stacked
+from covviz.model.particles import effective_sample_size, normalize_log_weights
 from covviz.records import FrameRecord
 from covviz.trackers.base import check_init_box, to_gray
 
@@ -325,7 +325,7 @@ def box_to_state(boxes, size: int = TEMPLATE_SIZE) -> np.ndarray:
 
 
 def sample_templates(gray: np.ndarray, states, size: int = TEMPLATE_SIZE, grid: str = "reference") -> np.ndarray:
-    """Sample the ``size x size`` template of every state, bilinearly (:func:`covviz.features.remap_stacked`).
+    """Sample the ``size x size`` template of every state, bilinearly (:func:`covviz.model.features.remap_stacked`).
 
     Parameters
     ----------

@@ -4,9 +4,9 @@ Each particle carries a pose ``[x, y, vx, vy, scale, theta]`` and its own
 template ``C = expm(L)`` (kept in log space). Every frame:
 
 1. **propagate** the kinematics (near-constant velocity, two-mode noise) and the
-   templates (random walk ``L += W``), see :mod:`covviz.dynamics`;
+   templates (random walk ``L += W``), see :mod:`covviz.model.dynamics`;
 2. **observe**: warp each particle's region to 32×32, compute the 9 features and
-   the covariance descriptor ``C*`` (:mod:`covviz.features`, :mod:`covviz.descriptor`);
+   the covariance descriptor ``C*`` (:mod:`covviz.model.features`, :mod:`covviz.model.descriptor`);
 3. **weigh**: ``w ∝ w_prev · exp(-d(C, C*)² / 2σ²)`` with the affine-invariant distance
    (by default ``d²`` also carries a quadrant term, see below);
 4. **estimate** the pose by MMSE (the weighted mean);
@@ -24,7 +24,7 @@ their distances, the weight uses
 ``d² = d(C, C*)² + quadrant_weight · mean of the three smallest q_k²``
 (dropping the worst quadrant keeps a partial occlusion from dominating). The
 ``q_k`` are ``sqrt(8·J)`` with ``J`` the Jensen–Bregman LogDet divergence
-(:func:`covviz.spd.jbld`), which equals the affine-invariant distance to
+(:func:`covviz.model.spd.jbld`), which equals the affine-invariant distance to
 second order and costs Cholesky factorisations instead of eigensolvers. The
 paper's per-particle templates are unchanged.
 
@@ -39,7 +39,7 @@ of ``docs/results.md``). Two changes are on by default:
   is floored (``grad_floor``) so that a textureless target's noise is not
   magnified to unit scale (VOT15_bag).
 * **A foreground/background colour term** (``colour_weight``,
-  :mod:`covviz.fgbg`): Staple-style colour histograms of the box and a ring
+  :mod:`covviz.model.fgbg`): Staple-style colour histograms of the box and a ring
   around it, a separate factor of the likelihood.
 
 Also implemented, measured and left off: a scale/rotation search at the
@@ -61,8 +61,8 @@ from typing import Self
 
 import numpy as np
 
-from covviz import fgbg
-from covviz.dynamics import (
+from covviz.model import fgbg
+from covviz.model.dynamics import (
     POSE,
     SCALE,
     THETA,
@@ -74,9 +74,9 @@ from covviz.dynamics import (
     propagate_kinematics,
     template_walk,
 )
-from covviz.features import N_FEATURES, pose_corners, pose_to_box
-from covviz.observation import ObservationModel, QuadrantState, update_quadrant_state
-from covviz.particles import (
+from covviz.model.features import N_FEATURES, pose_corners, pose_to_box
+from covviz.model.observation import ObservationModel, QuadrantState, update_quadrant_state
+from covviz.model.particles import (
     ParticleSet,
     effective_sample_size,
     mmse,
@@ -85,7 +85,7 @@ from covviz.particles import (
     systematic_resample,
 )
 from covviz.records import FrameRecord
-from covviz.spd import logm
+from covviz.model.spd import logm
 from covviz.trackers.base import check_init_box
 
 __all__ = ["ManifoldConfig", "ManifoldTracker"]
@@ -133,10 +133,10 @@ class ManifoldConfig:
     gain_normalize : bool
         Divide each patch's intensity and derivative features by its mean
         intensity: descriptors become invariant to illumination gain
-        (see :func:`covviz.features.patch_features`). Not in the paper.
+        (see :func:`covviz.model.features.patch_features`). Not in the paper.
     grad_normalize : float
         Divide each patch's derivative features by their patch mean to this
-        power, 0 to 1 (:func:`covviz.features.normalize_gradients`): the descriptor no
+        power, 0 to 1 (:func:`covviz.model.features.normalize_gradients`): the descriptor no
         longer depends on how finely the region is sampled, which otherwise
         ties the box to the initial size (a shrinking target's derivatives
         per sample shrink with it). Not in the paper.
@@ -156,7 +156,7 @@ class ManifoldConfig:
         Weight of the quadrant term in ``d²``.
     colour_weight : float
         Weight of the foreground/background colour term in ``d²``
-        (:mod:`covviz.fgbg`; not in the paper): how much of the box's colour
+        (:mod:`covviz.model.fgbg`; not in the paper): how much of the box's colour
         is the target's rather than its surroundings'. 0 turns it off.
     colour_rate : float
         Learning rate of the colour histograms (Staple's 0.04).
@@ -168,13 +168,13 @@ class ManifoldConfig:
         Weight of the context term (needs ``quadrants``): how much more a
         box's quadrants resemble those of the initial box grown by
         ``context_scale`` than the references
-        (:meth:`~covviz.observation.ObservationModel.context_terms`). 0: off.
+        (:meth:`~covviz.model.observation.ObservationModel.context_terms`). 0: off.
     context_scale : float
     quadrant_reliability : float
         Rate of the running mean of each quadrant's mismatch at the estimate;
         > 0 weighs the quadrants by their reliability (the inverse of that
         mean) instead of dropping the worst
-        (:class:`~covviz.observation.QuadrantState`). 0: drop the worst.
+        (:class:`~covviz.model.observation.QuadrantState`). 0: drop the worst.
     quadrant_ref_rate : float
         With reliabilities, each quadrant reference takes a log-Euclidean
         step of this size towards the estimate's quadrant when it matches
@@ -182,7 +182,7 @@ class ManifoldConfig:
     quadrant_ref_gate : float
     anchor_pull : float
         Each frame, every particle's template moves this fraction of the way
-        to the anchor before its random step (:func:`covviz.dynamics.template_walk`);
+        to the anchor before its random step (:func:`covviz.model.dynamics.template_walk`);
         0: the paper's free walk.
     anchor_rate : float
         The anchor (a log-space template: the initial one at first) takes a
@@ -201,7 +201,7 @@ class ManifoldConfig:
     scale_steps : int
         After the MMSE estimate, score ``2·scale_steps + 1`` scales
         ``scale_step**k`` at the estimated centre with the estimate's template
-        (:meth:`~covviz.observation.ObservationModel.pose_search`), as CSRT
+        (:meth:`~covviz.model.observation.ObservationModel.pose_search`), as CSRT
         searches its scale pyramid once the centre is found; 0: no search.
     scale_step : float
         Ratio of neighbouring scales of the search (CSRT: 1.02).
@@ -217,7 +217,7 @@ class ManifoldConfig:
         And every particle's scale and angle move by this fraction of the
         estimate's move (1: the whole cloud follows).
     jit : bool
-        Observe with the compiled kernels (:mod:`covviz.kernels`) when numba is
+        Observe with the compiled kernels (:mod:`covviz.model.kernels`) when numba is
         installed and ``COVVIZ_NO_JIT`` is not set; ``False``: the numpy path.
     """
 
@@ -386,7 +386,7 @@ class ManifoldConfig:
 
 
 # --------------------------------------------------------------------------- #
-# what `covviz tune` searches (covviz.tune runs the study)
+# what `covviz tune` searches (covviz.experiments.tune runs the study)
 # --------------------------------------------------------------------------- #
 #: The search space of ``covviz tune``, declared next to the config it searches:
 #: field -> (low, high, scale), scale ``"log"`` or ``"linear"`` (floats) or ``"int"``.
@@ -460,8 +460,8 @@ class ManifoldTracker:
     """Particle filter with per-particle covariance templates (the paper's method).
 
     A thin shell over the pure pieces: the frozen
-    :class:`~covviz.observation.ObservationModel` (built at :meth:`init`), the
-    :class:`~covviz.particles.ParticleSet` it steps, and a pool of
+    :class:`~covviz.model.observation.ObservationModel` (built at :meth:`init`), the
+    :class:`~covviz.model.particles.ParticleSet` it steps, and a pool of
     ``config.threads`` threads for the observations, which :meth:`close`
     (or leaving a ``with`` block) shuts down.
 
@@ -491,12 +491,12 @@ class ManifoldTracker:
       (normalised); a term's share of the weight is what removing it would
       change;
     * the online state the likelihood used this frame (frozen dataclasses,
-      None when off): ``colour_state`` (:class:`covviz.fgbg.ColourModel`;
+      None when off): ``colour_state`` (:class:`covviz.model.fgbg.ColourModel`;
       ``model.colour_map(frame, state)`` then gives what
       ``observe(..., colour=…)`` needs), ``colour_map`` (that map of this
-      frame, :class:`covviz.fgbg.ColourMap`, as ``update()`` weighed by it),
+      frame, :class:`covviz.model.fgbg.ColourMap`, as ``update()`` weighed by it),
       ``quadrant_state``
-      (:class:`~covviz.observation.QuadrantState`), ``anchor``
+      (:class:`~covviz.model.observation.QuadrantState`), ``anchor``
       (:class:`AnchorState`, the template walk's anchor);
     * ``pose_search``: the scale and rotation candidates scored at the
       estimate and their ``d_eff`` (None without the search).
@@ -506,7 +506,7 @@ class ManifoldTracker:
 
     Examples
     --------
-    >>> from covviz.sequences import SyntheticSequence
+    >>> from covviz.data.sequences import SyntheticSequence
     >>> seq = SyntheticSequence()
     >>> with ManifoldTracker(rng=0) as tr:
     ...     tr.init(seq.frame(0).image, seq.init_box)
@@ -799,8 +799,8 @@ def _ro(a: np.ndarray) -> np.ndarray:
 
 
 def _concat_observations(a, b):
-    """One :class:`~covviz.observation.Observation` of two batches, in order."""
-    from covviz.observation import Observation
+    """One :class:`~covviz.model.observation.Observation` of two batches, in order."""
+    from covviz.model.observation import Observation
 
     def cat(x, y):
         return None if x is None else np.concatenate([x, y])

@@ -156,7 +156,7 @@ class OpenCVTracker:
 
     Examples
     --------
-    >>> from covviz.sequences import SyntheticSequence
+    >>> from covviz.data.sequences import SyntheticSequence
     >>> seq = SyntheticSequence()
     >>> tr = OpenCVTracker("csrt")
     >>> tr.init(seq.frame(0).image, seq.init_box)

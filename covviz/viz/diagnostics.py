@@ -3,7 +3,7 @@
 Nothing here runs inside the tracker or calls it: the logger calls these
 functions with the :class:`~covviz.records.FrameRecord` a tracker already
 filled, the frame, and (for the observation-based diagnostics) the tracker's
-frozen :class:`~covviz.observation.ObservationModel` from its init record, so
+frozen :class:`~covviz.model.observation.ObservationModel` from its init record, so
 extra descriptors and distances are exactly what the tracker would compute.
 This module does not import rerun: it returns arrays and small dataclasses.
 
@@ -19,7 +19,7 @@ This module does not import rerun: it returns arrays and small dataclasses.
   and identities.
 
 Events (storms, loss, drift onset, recovery) are time-series logic and live
-in :mod:`covviz.events`.
+in :mod:`covviz.diagnosis.events`.
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from covviz.observation import ObservationModel
+from covviz.model.observation import ObservationModel
 from covviz.records import FrameRecord
-from covviz.spd import expm, expm_taylor, spread_riemann
+from covviz.model.spd import expm, expm_taylor, spread_riemann
 
 __all__ = [
     "CLOUD_KINDS",
@@ -193,7 +193,7 @@ def template_spread(
 ) -> tuple[float, np.ndarray]:
     """Spread of a cloud of templates: mean geodesic distance to their Karcher mean.
 
-    :func:`covviz.spd.spread_riemann` of ``expm`` of (a subset of) the
+    :func:`covviz.model.spd.spread_riemann` of ``expm`` of (a subset of) the
     log-space templates. The cloud is tight (a random walk of small steps):
     started from the previous frame's mean, the mean takes one or two steps.
 

@@ -31,14 +31,14 @@ import numpy as np
 import rerun as rr
 
 from covviz import __version__
-from covviz.diagnosis import Diagnoser, DiagnosisConfig
+from covviz.diagnosis.drift import Diagnoser, DiagnosisConfig
 from covviz.embedding import AlignedMDS, distance_matrix, stress1
-from covviz.features import pose_corners
+from covviz.model.features import pose_corners
 from covviz.metrics import center_error, evaluate, iou, nothing_to_score
-from covviz.observation import ObservationModel, box_to_pose
-from covviz.particles import effective_sample_size
+from covviz.model.observation import ObservationModel, box_to_pose
+from covviz.model.particles import effective_sample_size
 from covviz.records import FrameRecord, frame_number
-from covviz.spd import logm
+from covviz.model.spd import logm
 from covviz.threads import limit_threads
 from covviz.viz import paths as P
 from covviz.viz import why
@@ -272,7 +272,7 @@ class RerunLogger:
     close_on_end : bool
         Flush and disconnect the stream in ``on_end`` (also after an
         interruption), which finalises an ``.rrd`` file.
-    diagnoser : covviz.diagnosis.Diagnoser, optional
+    diagnoser : covviz.diagnosis.drift.Diagnoser, optional
         The drift diagnosis the logger drives (frame by frame, on its own
         thread) and draws; pass one to read its results after the run (as
         ``covviz track`` does for the results JSON and its summary). Default:

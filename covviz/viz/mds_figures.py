@@ -15,7 +15,7 @@
     background (the paper's caption).
 
 One observation model serves both figures: the manifold tracker's, built at
-its initialisation on frame 1 (:class:`covviz.observation.ObservationModel`,
+its initialisation on frame 1 (:class:`covviz.model.observation.ObservationModel`,
 taken from the tracker's init record), so a descriptor here is exactly what
 the tracker would observe at that box. Each figure names the model it used.
 
@@ -35,8 +35,8 @@ import numpy as np
 from covviz.embedding import distance_matrix, embed
 from covviz.errors import InputError
 from covviz.metrics import iou, valid_rows
-from covviz.observation import ObservationModel, box_to_pose
-from covviz.spd import expm
+from covviz.model.observation import ObservationModel, box_to_pose
+from covviz.model.spd import expm
 from covviz.viz.diagnostics import top_k
 from covviz.viz.palette import BACKGROUND_COLOR as BLUE
 from covviz.viz.palette import GT_COLOR as RED

@@ -202,7 +202,7 @@ class TrackerPaths:
         """One row per event, its fields as values (``covviz events`` reads them back)."""
         return f"{self.root}/event_records"
 
-    # why it drifts (covviz.diagnosis)
+    # why it drifts (covviz.diagnosis.drift)
     @property
     def why(self) -> str:
         return f"{self.root}/why"

@@ -1,6 +1,6 @@
 """The views that explain a failure: evidence series, frame labels, zoom, likelihood slices, heatmaps.
 
-Everything here draws what :mod:`covviz.diagnosis` and :mod:`covviz.viz.diagnostics`
+Everything here draws what :mod:`covviz.diagnosis.drift` and :mod:`covviz.viz.diagnostics`
 computed; the logger (:mod:`covviz.viz.logger`) decides when. Static parts
 (series styles, axis labels, colour bars) are logged once per tracker by
 :func:`log_static`.
@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import rerun as rr
 
-from covviz.diagnosis import FrameEvidence
-from covviz.features import FEATURE_NAMES
+from covviz.diagnosis.drift import FrameEvidence
+from covviz.model.features import FEATURE_NAMES
 from covviz.viz import paths as P
 from covviz.viz.diagnostics import LikelihoodSlices
 

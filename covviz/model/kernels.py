@@ -1,18 +1,18 @@
 """Compiled (numba) kernels for the manifold tracker's hot path.
 
-The numpy functions of :mod:`covviz.features`, :mod:`covviz.descriptor` and
+The numpy functions of :mod:`covviz.model.features`, :mod:`covviz.model.descriptor` and
 :mod:`covviz.trackers.manifold` stay the reference; these kernels compute the
 same quantities with less work:
 
 * :func:`warp_descriptors_fast` — from the grey frame to the descriptors in
   one pass per particle: the bilinear warp (bit for bit what
-  :func:`covviz.features.warp_patches` gives), the 9 features and their
+  :func:`covviz.model.features.warp_patches` gives), the 9 features and their
   moments, quadrant by quadrant, all in scratch buffers that stay in the L1
   cache. Nothing of size ``n x 34 x 34`` (patches, sampling maps) or
   ``n x 9 x 1024`` (feature planes) is ever written to memory.
   :func:`descriptors_fast` does the same from already warped patches.
 * :func:`template_distances_fast` — ``d(expm(L_i), C_i)`` for every particle:
-  the same Taylor exponential as :func:`covviz.spd.expm_taylor` and a cyclic
+  the same Taylor exponential as :func:`covviz.model.spd.expm_taylor` and a cyclic
   Jacobi eigensolver, vectorised *across particles* (blocks of at most
   :data:`LANES` particles, structure-of-arrays, particle index innermost).
 * :func:`quadrant_distances_fast` — ``sqrt(8·JBLD)`` of the quadrants by
@@ -72,7 +72,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from covviz.features import FEATURE_SCALE, N_FEATURES
+from covviz.model.features import FEATURE_SCALE, N_FEATURES
 
 #: ``COVVIZ_NO_JIT=1`` (or ``true``/``yes``): the numpy path, and numba is not even imported.
 _DISABLED = os.environ.get("COVVIZ_NO_JIT", "").strip().lower() in ("1", "true", "yes")
@@ -181,10 +181,10 @@ _ATAN_C = (
 )
 
 # The kernels hard-code the feature scales the numpy path uses (the doubling
-# trick of covviz.features._fill_features and the 2/π of the angle).
+# trick of covviz.model.features._fill_features and the 2/π of the angle).
 _EXPECTED_SCALE = np.array([1.0, 1.0, 1.0, 4.0, 4.0, 4.0, 2.0 / np.pi, 2.0, 2.0], dtype=np.float32)
 if not np.array_equal(FEATURE_SCALE, _EXPECTED_SCALE) or N_FEATURES != 9:  # pragma: no cover
-    raise ImportError("covviz.kernels assumes the feature scales of covviz.features; update both together")
+    raise ImportError("covviz.model.kernels assumes the feature scales of covviz.model.features; update both together")
 
 
 @_jit(_FM_WARP)
@@ -192,7 +192,7 @@ def _warp_patch(flat, H, W, a, q, B, idx, dx, dy, al, be):
     """Bilinear samples of one pose's grid into ``B`` (g, g), float32, BORDER_REPLICATE.
 
     ``a`` (6,): ``x = a0 + a1·q[u] + a2·q[v]``, ``y = a3 + a4·q[u] + a5·q[v]``
-    in pixel-centre coordinates (what :func:`covviz.features.sample_grid`
+    in pixel-centre coordinates (what :func:`covviz.model.features.sample_grid`
     gives cv2.remap), rounded to float32 as there; then OpenCV 5's float
     bilinear interpolation: ``f0 = p00 + α(p01 − p00)``, ``f1 = p10 + α(p11 −
     p10)``, ``f0 + β(f1 − f0)``, each a fused multiply-add. ``idx``, ``dx``,
@@ -279,7 +279,7 @@ def _region_features(B, r0, c0, hr, hc, u, mean32, kf, F):
     factor (1 without normalisation); ``u`` (S,) the centred coordinates,
     ``F`` (9, ≥ hr·hc) float32, pixels row-major.
 
-    The features of :func:`covviz.features.patch_features`, each rounded
+    The features of :func:`covviz.model.features.patch_features`, each rounded
     once: differences of neighbouring pixels are taken on the unscaled patch
     (exact in float32 when the pixels are within a factor 2) and scaled
     after, and second differences as ``(r − c) + (l − c)``. The numpy path
@@ -451,7 +451,7 @@ def _interior_sum(B):
 
 @_jit(_FM_FEAT)
 def _regularize(C, eps):
-    """``C + eps·(tr C / d + 1e-12)·I`` in place (:func:`covviz.spd.regularize`)."""
+    """``C + eps·(tr C / d + 1e-12)·I`` in place (:func:`covviz.model.spd.regularize`)."""
     d = C.shape[0]
     tr = 0.0
     for a in range(d):
@@ -471,7 +471,7 @@ def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q,
     first-derivative features are divided by the patch's mean ``|grad I|``
     to the power ``a`` and the second derivatives by theirs, as a congruence
     of the moments before regularisation (the numpy path's
-    :func:`covviz.features.normalize_gradients`); the mean ``|grad I|`` is
+    :func:`covviz.model.features.normalize_gradients`); the mean ``|grad I|`` is
     floored at ``grad_floor`` (and 1e-6), the second derivatives' at 1e-6.
     """
     g = B.shape[0]
@@ -571,7 +571,7 @@ def _descriptors_from_frame(gray, A, q, u, eps, gain_normalize, quadrants, C, Q,
 
 
 def _coordinates(S: int) -> np.ndarray:
-    """The centred pixel coordinates of :func:`covviz.features.patch_features`, ``(S,)`` float32."""
+    """The centred pixel coordinates of :func:`covviz.model.features.patch_features`, ``(S,)`` float32."""
     return (np.arange(S, dtype=np.float32) + 0.5) / S - 0.5
 
 
@@ -593,14 +593,14 @@ def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants
     Parameters
     ----------
     patches : ndarray, shape (n, S + 2, S + 2), float32
-        Bordered patches (:func:`covviz.features.warp_patches`).
+        Bordered patches (:func:`covviz.model.features.warp_patches`).
     eps : float
-        Shrinkage of :func:`covviz.spd.regularize`.
+        Shrinkage of :func:`covviz.model.spd.regularize`.
     gain_normalize, quadrants : bool
         As in :class:`covviz.trackers.manifold.ManifoldConfig`.
     grad_normalize, grad_floor : float
         As in :class:`covviz.trackers.manifold.ManifoldConfig`
-        (:func:`covviz.features.normalize_gradients`' ``power`` and ``floor``).
+        (:func:`covviz.model.features.normalize_gradients`' ``power`` and ``floor``).
 
     Returns
     -------
@@ -627,7 +627,7 @@ def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants
 
 
 def _affine(poses, base_wh, step) -> np.ndarray:
-    """Per-pose coefficients of the sampling grid, ``(n, 6)``: those of :func:`covviz.features.sample_grid`."""
+    """Per-pose coefficients of the sampling grid, ``(n, 6)``: those of :func:`covviz.model.features.sample_grid`."""
     p = np.asarray(poses, dtype=np.float64)
     if p.ndim == 1:
         p = p[None]
@@ -648,7 +648,7 @@ def warp_descriptors_fast(
     """Descriptors at ``poses`` straight from the frame: warp, features and moments fused.
 
     The same as ``descriptors_fast(warp_patches(gray, poses, base_wh, size, 1,
-    step), ...)``; the warp is bit for bit :func:`covviz.features.warp_patches`
+    step), ...)``; the warp is bit for bit :func:`covviz.model.features.warp_patches`
     (OpenCV 5's float bilinear interpolation with BORDER_REPLICATE).
 
     Parameters
@@ -660,7 +660,7 @@ def warp_descriptors_fast(
     size : int
         Patch side ``S``.
     step : float or (float, float)
-        Downsampling factor of ``gray`` (see :func:`covviz.features.sample_grid`).
+        Downsampling factor of ``gray`` (see :func:`covviz.model.features.sample_grid`).
     eps, gain_normalize, quadrants, grad_normalize, grad_floor
         As in :func:`descriptors_fast`.
 
@@ -749,7 +749,7 @@ def _lanes_mul(A, B, out, m):
 def _lanes_expm_shifted(X, X2, X3, E, T, c, k, sc, m):
     """``E = expm(X − c·I)`` per lane, without the factor ``e^c``; ``X`` (9, 9, ·) symmetric, overwritten.
 
-    :func:`covviz.spd.expm_taylor`'s algorithm with the scaling chosen per
+    :func:`covviz.model.spd.expm_taylor`'s algorithm with the scaling chosen per
     lane (the numpy function chooses it per batch): shift by ``c = tr X / 9``
     (returned in ``c``), scale by ``2^-k`` until the inf-norm is at most 1/4,
     degree-11 Taylor polynomial by Paterson–Stockmeyer (Horner in ``X³``),

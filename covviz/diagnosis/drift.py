@@ -3,7 +3,7 @@
 :class:`Diagnoser` is an observer (``on_start`` / ``on_frame`` / ``on_end``,
 no Rerun) that reads each tracker's :class:`~covviz.records.FrameRecord`, the
 frame and its ground truth, and computes through the tracker's own frozen
-:class:`~covviz.observation.ObservationModel` (or, for trackers without one, a
+:class:`~covviz.model.observation.ObservationModel` (or, for trackers without one, a
 probe model built the same way on the first frame):
 
 1. **Model or search failure, every frame** (with ground truth). The distance
@@ -14,7 +14,7 @@ probe model built the same way on the first frame):
    estimate), a *search* failure when the truth would score better but no
    particle reached it, and an *estimate* failure when particles did reach the
    better-scoring truth and the estimate still lies elsewhere (:data:`LABELS`).
-2. **A cause for every loss.** When the event detector (:mod:`covviz.events`)
+2. **A cause for every loss.** When the event detector (:mod:`covviz.diagnosis.events`)
    reports a loss, the frames from a little before the drift began to the loss
    are read against the target's look before it (the *baseline*) and the
    first cause of :data:`CAUSES` whose rule holds is named, with the numbers
@@ -35,11 +35,11 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from covviz.events import EVENT_DEFAULTS, Event, EventConfig, EventDetector
+from covviz.diagnosis.events import EVENT_DEFAULTS, Event, EventConfig, EventDetector
 from covviz.metrics import iou
-from covviz.observation import ObservationModel, box_to_pose
-from covviz.particles import effective_sample_size
-from covviz.spd import distance_jbld, distance_riemann, logdet, mean_logeuclid
+from covviz.model.observation import ObservationModel, box_to_pose
+from covviz.model.particles import effective_sample_size
+from covviz.model.spd import distance_jbld, distance_riemann, logdet, mean_logeuclid
 from covviz.trackers.base import to_gray
 
 __all__ = [
@@ -509,7 +509,7 @@ def diagnose(history: list[FrameEvidence], lost_at: int, drift_began: int, cfg: 
     history : list of FrameEvidence
         In frame order, ending at (or after) the loss.
     lost_at, drift_began : int
-        1-based frames of the loss and the drift onset (:class:`covviz.events.EventDetector`).
+        1-based frames of the loss and the drift onset (:class:`covviz.diagnosis.events.EventDetector`).
     cfg : DiagnosisConfig
 
     Returns

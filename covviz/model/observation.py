@@ -8,7 +8,7 @@ weighs by:
 * the target's base size ``(w, h)`` at scale 1, the anti-aliasing downsample
   (an integer step and its exact ``(sx, sy)`` factors), the smoothing;
 * the patch size, the descriptor regulariser and the gain normalisation of
-  the features (:mod:`covviz.features`, :mod:`covviz.descriptor`);
+  the features (:mod:`covviz.model.features`, :mod:`covviz.model.descriptor`);
 * the quadrant references observed at the initial box and their log-dets,
   the quadrant weight and the likelihood's σ.
 
@@ -26,27 +26,27 @@ The likelihood
     pose in :attr:`Observation.terms` (weights: :attr:`ObservationModel.term_weights`):
 
     * ``"quadrants"``: the mean of the three smallest ``q_k²``, ``q_k =
-      sqrt(8·J)`` (:func:`covviz.spd.distance_jbld`) of each quadrant of the
+      sqrt(8·J)`` (:func:`covviz.model.spd.distance_jbld`) of each quadrant of the
       region against the one observed at the initial box (Porikli, Tuzel and
       Meer, CVPR 2006). Dropping the worst quadrant keeps a partial occlusion
       from dominating a particle's score. (Or, given a :class:`QuadrantState`,
       a reliability-weighted mean against online references.)
     * ``"colour"``: the foreground/background colour term of
-      :mod:`covviz.fgbg`, given the frame's :meth:`ObservationModel.colour_map`
+      :mod:`covviz.model.fgbg`, given the frame's :meth:`ObservationModel.colour_map`
       (its histograms are the tracker's online state).
     * ``"context"``: :meth:`ObservationModel.context_terms`.
 
     Which terms a model has is fixed when it is built (``manifold-paper``:
     none). With ``grad_normalize`` the descriptors themselves change (the
     derivative features are divided by their patch mean,
-    :func:`covviz.features.normalize_gradients`): then the template, the
+    :func:`covviz.model.features.normalize_gradients`): then the template, the
     quadrants and the references all see sampling-invariant features.
 
 Determinism
     Poses are cut into fixed chunks of :data:`OBSERVE_CHUNK`, computed the same
     way whatever executor (and however many threads) runs them, so results do
     not depend on the thread count: SIMD kernels round an array's tail
-    differently, and the Taylor scaling of :func:`covviz.spd.distance_riemann_log`
+    differently, and the Taylor scaling of :func:`covviz.model.spd.distance_riemann_log`
     is chosen per batch, so the split itself must never depend on the threads.
 """
 
@@ -58,11 +58,11 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from covviz import fgbg
-from covviz.descriptor import covariance, quadrant_covariances
-from covviz.features import N_FEATURES, normalize_gradients, patch_features, pose_to_box, warp_patches
-from covviz.particles import log_likelihood
-from covviz.spd import distance_jbld, distance_riemann_log, logdet
+from covviz.model import fgbg
+from covviz.model.descriptor import covariance, quadrant_covariances
+from covviz.model.features import N_FEATURES, normalize_gradients, patch_features, pose_to_box, warp_patches
+from covviz.model.particles import log_likelihood
+from covviz.model.spd import distance_jbld, distance_riemann_log, logdet
 from covviz.trackers.base import check_init_box, to_gray
 
 __all__ = [
@@ -148,7 +148,7 @@ def update_quadrant_state(
     if ref_rate > 0:
         good = q2 < gate * state.noise
         if good.any():
-            from covviz.spd import expm, logm
+            from covviz.model.spd import expm, logm
 
             new = expm((1 - ref_rate) * logm(ref[good]) + ref_rate * logm(np.asarray(Q_est)[good]))
             ref = ref.copy()
@@ -189,7 +189,7 @@ class Observation:
         The likelihood's extra terms at each pose, unweighted, by name
         (:meth:`ObservationModel.term_weights` holds their weights):
         ``"quadrants"`` (:func:`quadrant_term`), ``"colour"``
-        (:func:`covviz.fgbg.colour_term`), those the model has. With them
+        (:func:`covviz.model.fgbg.colour_term`), those the model has. With them
         ``d_eff² = d² + Σ_k weight_k · terms[k]``.
     """
 
@@ -231,12 +231,12 @@ class ObservationModel:
     gain_normalize : bool
     grad_normalize : float
         Divide the derivative features by the patch's mean derivative to
-        this power (:func:`covviz.features.normalize_gradients`; 1: fully,
+        this power (:func:`covviz.model.features.normalize_gradients`; 1: fully,
         0: not): descriptors that do not depend on how finely a region is
         sampled.
     grad_floor : float
         The floor of the mean ``|grad I|`` that divides the first derivatives
-        (:func:`covviz.features.normalize_gradients`' ``floor``; 0: only
+        (:func:`covviz.model.features.normalize_gradients`' ``floor``; 0: only
         1e-6): a textureless patch keeps its small absolute derivatives.
     smooth_sigma : float
         Gaussian smoothing of the (downsampled) frame, pixels; 0: none.
@@ -250,15 +250,15 @@ class ObservationModel:
         Their log-determinants.
     colour_reliability : float
         Exponent of the colour term's reliability gain
-        (:attr:`covviz.fgbg.ColourMap.gain`); 0: none.
+        (:attr:`covviz.model.fgbg.ColourMap.gain`); 0: none.
     colour_weight : float
         Weight of the foreground/background colour term
-        (:func:`covviz.fgbg.colour_term`) in ``d_eff²``; 0: no colour term.
+        (:func:`covviz.model.fgbg.colour_term`) in ``d_eff²``; 0: no colour term.
         Its online state (the histograms) is the tracker's
-        (:class:`covviz.fgbg.ColourModel`), passed in through
+        (:class:`covviz.model.fgbg.ColourModel`), passed in through
         :meth:`colour_map`.
     jit : bool
-        Observe with the compiled kernels (:mod:`covviz.kernels`) when they are
+        Observe with the compiled kernels (:mod:`covviz.model.kernels`) when they are
         available (``COVVIZ_NO_JIT=1`` or no numba: the numpy path, always).
         The kernels fuse the warp, the features and the moments per pose and
         agree with the numpy path to ~1e-3 in a distance (they are closer to
@@ -495,7 +495,7 @@ class ObservationModel:
         return fgbg.colour_map(frame, state, self.colour_reliability)
 
     def colour_terms(self, cmap: fgbg.ColourMap, poses) -> np.ndarray:
-        """The colour term (unweighted) of each pose's axis-aligned box (:func:`covviz.features.pose_to_box`), ``(n,)``."""
+        """The colour term (unweighted) of each pose's axis-aligned box (:func:`covviz.model.features.pose_to_box`), ``(n,)``."""
         return fgbg.colour_term(cmap, pose_to_box(np.asarray(poses, dtype=np.float64).reshape(-1, 4), self.base_wh))
 
     def _sample_step(self):
@@ -818,14 +818,14 @@ class ObservationModel:
         return np.sqrt(acc)
 
     def log_likelihood(self, d_eff: np.ndarray) -> np.ndarray:
-        """``-d_eff² / 2σ²``, the log-likelihood up to a constant (:func:`covviz.particles.log_likelihood`)."""
+        """``-d_eff² / 2σ²``, the log-likelihood up to a constant (:func:`covviz.model.particles.log_likelihood`)."""
         return log_likelihood(d_eff, self.likelihood_sigma)
 
 
 def _kernels():
-    """:mod:`covviz.kernels`, imported on first use: commands that never observe (``report``,
+    """:mod:`covviz.model.kernels`, imported on first use: commands that never observe (``report``,
     ``events``, every ``--help``) do not pay for importing numba."""
-    from covviz import kernels
+    from covviz.model import kernels
 
     return kernels
 

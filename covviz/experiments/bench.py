@@ -4,11 +4,11 @@ The flow is got-10k's (run → results on disk → report)::
 
     ROOT/<sequence>/...        OTB (img/ + groundtruth_rect.txt) or VOT (groundtruth.txt) folders
         │  one job per (sequence, tracker, seed), longest first, each in a fresh process
-        │  (covviz.jobs), J at a time here or on a Dask cluster (covviz.cluster); results come back
+        │  (covviz.experiments.jobs), J at a time here or on a Dask cluster (covviz.experiments.cluster); results come back
         ▼
-    OUT/<sequence>/<tracker>_s<seed>.txt|.json   (covviz.results; deterministic trackers: <tracker>.txt|.json)
+    OUT/<sequence>/<tracker>_s<seed>.txt|.json   (covviz.experiments.results; deterministic trackers: <tracker>.txt|.json)
     OUT/bench_manifest.json                      what this folder holds: root, trackers, seeds, ...
-        │  covviz report OUT (covviz.report): reads the files only
+        │  covviz report OUT (covviz.experiments.report): reads the files only
         ▼
     OUT/report.md + OUT/img/bench_*.png
 
@@ -21,11 +21,11 @@ Seeds
     trackers run once (seed ``None`` in their results).
 
 Processes
-    Every job runs in a fresh process (:mod:`covviz.jobs`): OpenCV's MIL and TLD
+    Every job runs in a fresh process (:mod:`covviz.experiments.jobs`): OpenCV's MIL and TLD
     keep random state between runs in one process, so this is what makes every
     result independent of job order and placement. Locally (the default),
     J jobs at a time, each with ``cpu_count // J`` OpenCV/BLAS threads; on a
-    Dask cluster (``cluster=``, :mod:`covviz.cluster`), one job per worker
+    Dask cluster (``cluster=``, :mod:`covviz.experiments.cluster`), one job per worker
     thread, each with one. A job whose process dies (killed by a signal, e.g.
     the OOM killer, or lost with its worker) is run again up to ``retries``
     times; after that only that job fails, the others run. Ctrl-C ends the
@@ -33,7 +33,7 @@ Processes
 
 Resuming
     Every job returns its boxes and metrics to this process, which writes its
-    result atomically (:func:`covviz.results.save_result`) as soon as it
+    result atomically (:func:`covviz.experiments.results.save_result`) as soon as it
     finishes: workers need no access to the results folder. A job whose result already exists,
     loads, covers the expected frames and was made with the same tracker config is
     skipped, so re-running an interrupted bench runs only what is missing. Running
@@ -62,8 +62,8 @@ from pathlib import Path
 
 from covviz import __version__
 from covviz.errors import InputError
-from covviz.jobs import Job, JobError, JobOutput, JobProcess, JobProcessDied, Outcome, sigint_deferred
-from covviz.results import MANIFEST_FORMAT, MANIFEST_NAME, read_manifest, write_manifest
+from covviz.experiments.jobs import Job, JobError, JobOutput, JobProcess, JobProcessDied, Outcome, sigint_deferred
+from covviz.experiments.results import MANIFEST_FORMAT, MANIFEST_NAME, read_manifest, write_manifest
 
 __all__ = [
     "BenchError",
@@ -78,7 +78,7 @@ __all__ = [
     "save_output",
 ]
 
-log = logging.getLogger("covviz.bench")
+log = logging.getLogger("covviz.experiments.bench")
 
 #: Manifest fields that define a run: results made with other values are not comparable.
 IDENTITY_FIELDS = ("root", "max_frames", "particles", "covviz")
@@ -160,7 +160,7 @@ def read_sequences(root: str | Path, exclude: Seq[str | Path] = ()) -> dict[str,
     ------
     BenchError
     """
-    from covviz.sequences import SequenceError, open_sequence
+    from covviz.data.sequences import SequenceError, open_sequence
 
     sequences: dict[str, tuple[str, int]] = {}
     for p in find_sequences(root, exclude=exclude):
@@ -217,7 +217,7 @@ def plan_jobs(
 
 def _jsonable(obj):
     """What ``obj`` becomes after a round trip through a results JSON (to compare configs)."""
-    from covviz.results import _json_default
+    from covviz.experiments.results import _json_default
 
     return json.loads(json.dumps(obj, default=_json_default, allow_nan=True))
 
@@ -245,18 +245,18 @@ def tracker_configs(trackers: Seq[str], particles: int | None, config: dict | No
 
 
 # --------------------------------------------------------------------------- #
-# running jobs: the local executor (covviz.cluster has the Dask one)
+# running jobs: the local executor (covviz.experiments.cluster has the Dask one)
 # --------------------------------------------------------------------------- #
 def save_output(output: JobOutput, out_dir: str | Path) -> dict:
     """Write a job's result (atomically, Ctrl-C held back for the rename); return its JSON dict."""
-    from covviz.results import save_result
+    from covviz.experiments.results import save_result
 
     with sigint_deferred():
         return save_result(output.result, out_dir, output.extra)
 
 
 class LocalExecutor:
-    """``slots`` jobs at a time on this machine, each in a fresh process (:class:`covviz.jobs.JobProcess`).
+    """``slots`` jobs at a time on this machine, each in a fresh process (:class:`covviz.experiments.jobs.JobProcess`).
 
     Each job gets ``max(1, cpu_count // slots)`` OpenCV/BLAS threads. A job whose
     process dies (a signal: the OOM killer, a kill by hand) is run again up to
@@ -322,10 +322,10 @@ def _end_processes(procs: list[JobProcess]) -> None:
 
 
 def make_executor(cluster: str | None = None, jobs: int = 1, retries: int = 1):
-    """The executor of ``--cluster`` (:func:`covviz.cluster.dask_executor`), or the local pool of ``--jobs``."""
+    """The executor of ``--cluster`` (:func:`covviz.experiments.cluster.dask_executor`), or the local pool of ``--jobs``."""
     if cluster is None:
         return LocalExecutor(jobs, retries=retries)
-    from covviz.cluster import dask_executor
+    from covviz.experiments.cluster import dask_executor
 
     return dask_executor(cluster, retries=retries)
 
@@ -406,7 +406,7 @@ def _merge_manifest(old: dict | None, new: dict, out: Path, force: bool) -> dict
 
 def _is_done(job: Job, out: Path, config: dict) -> bool:
     """Whether ``job``'s result exists and is complete; raises on a corrupt or foreign one."""
-    from covviz.results import load_result, result_paths
+    from covviz.experiments.results import load_result, result_paths
 
     _, js = result_paths(out, job.sequence, job.tracker, job.seed)
     if not js.exists():
@@ -471,7 +471,7 @@ def bench(
         A ManifoldConfig's fields (``as_dict()``, or a subset) for the trackers of
         :data:`covviz.trackers.CONFIGURABLE` (``--config``); ``particles`` overrides its count.
     cluster : str, optional
-        Run the jobs on a Dask cluster (:func:`covviz.cluster.dask_executor`:
+        Run the jobs on a Dask cluster (:func:`covviz.experiments.cluster.dask_executor`:
         ``tcp://host:8786``, a scheduler file, or ``local:N``); ``jobs`` is then unused.
     retries : int
         Times a job whose process died is run again before it counts as failed.
@@ -557,7 +557,7 @@ def _bench_locked(
         )
 
     if todo and any(j.tracker.startswith("manifold") for j in todo) and (cluster is None or cluster.startswith("local:")):
-        from covviz import kernels
+        from covviz.model import kernels
 
         # Once here, not in every fresh job process at the same time (the compiled code is cached on disk).
         kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
@@ -584,7 +584,7 @@ def _bench_locked(
                 ex.close()
     rep = None
     if report:
-        from covviz.report import write_report
+        from covviz.experiments.report import write_report
 
         rep = write_report(out)
         log.info("report: %s", rep)

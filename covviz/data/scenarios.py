@@ -1,6 +1,6 @@
 """Named synthetic scenarios: one cause of failure, injected at a known frame.
 
-Each scenario is the calm synthetic sequence (:class:`~covviz.synthetic.SyntheticSequence`
+Each scenario is the calm synthetic sequence (:class:`~covviz.data.synthetic.SyntheticSequence`
 with its fast stretch, illumination dip and partial occlusion switched off; its
 first frames are those of the default sequence) plus exactly one injected
 cause. After a calm stretch on which the default tracker locks on, the cause
@@ -23,9 +23,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from covviz.frames import SequenceError
+from covviz.data.frames import SequenceError
 from covviz.metrics import iou
-from covviz.synthetic import SyntheticConfig, SyntheticSequence
+from covviz.data.synthetic import SyntheticConfig, SyntheticSequence
 
 __all__ = [
     "CALM",
@@ -91,7 +91,7 @@ class Scenario:
     """A named synthetic scenario: the calm sequence plus one cause.
 
     Subclasses set :attr:`cause`, implement :meth:`truth` and override the
-    hooks that :class:`~covviz.synthetic.SyntheticSequence` calls:
+    hooks that :class:`~covviz.data.synthetic.SyntheticSequence` calls:
     :meth:`adjust_poses` (the target's path), :meth:`texture` (its appearance
     at a frame) and :meth:`paint` (anything drawn over the frame, before sensor
     noise).
@@ -488,7 +488,7 @@ def get_scenario(name: str) -> Scenario:
 
 
 def open_scenario(scenario: str | Scenario, **config) -> SyntheticSequence:
-    """A :class:`~covviz.synthetic.SyntheticSequence` of ``scenario`` (a name or a spec).
+    """A :class:`~covviz.data.synthetic.SyntheticSequence` of ``scenario`` (a name or a spec).
 
     Keyword arguments replace fields of the scenario's :class:`SyntheticConfig`
     (``n_frames=…`` for a shorter sequence, say).

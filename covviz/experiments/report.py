@@ -1,7 +1,7 @@
 """``covviz report``: the markdown report and figures of a bench, from its result files only.
 
 Reads ``DIR/bench_manifest.json`` (if present) and every ``DIR/<sequence>/*.json``
-written by :func:`covviz.results.save_result`; never runs a tracker. Writes
+written by :func:`covviz.experiments.results.save_result`; never runs a tracker. Writes
 
 * ``report.md``: an overall table and one table per sequence (success AUC,
   P@20, r_on_track, rms_on_track, fps, failed frames; mean ± std over seeds),
@@ -32,11 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from covviz.metrics import IOU_THRESHOLDS, ON_TRACK_GAMMA, PRECISION_AT, PRECISION_THRESHOLDS
-from covviz.results import ResultError, load_result, read_manifest
+from covviz.experiments.results import ResultError, load_result, read_manifest
 
 __all__ = ["BASELINE", "OURS", "REPORT_NAME", "Run", "Summary", "load_runs", "render", "summarize", "write_report"]
 
-log = logging.getLogger("covviz.report")
+log = logging.getLogger("covviz.experiments.report")
 
 #: Default name of the report inside a results folder.
 REPORT_NAME = "report.md"
@@ -76,7 +76,7 @@ class Run:
     threads: int | None
     success: np.ndarray | None  # OTB success curve over the IoU thresholds
     precision: np.ndarray | None  # OTB precision curve over the pixel thresholds
-    causes: tuple = ()  # the diagnosed cause of each loss (covviz.diagnosis)
+    causes: tuple = ()  # the diagnosed cause of each loss (covviz.diagnosis.drift)
     losses: tuple = ()  # (drift began, lost at) of each loss, 1-based frames
     suspects: tuple = ()  # frames of the label-free suspects
 
@@ -128,7 +128,7 @@ def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
     ------
     ResultError
         If the folder does not exist or holds no result.
-    covviz.results.ResultError
+    covviz.experiments.results.ResultError
         If a result file is corrupt (the message names it).
     """
     d = Path(results_dir)
@@ -311,7 +311,7 @@ class Summary:
     causes_by_sequence : dict
         ``(sequence, tracker) -> {cause: losses}`` over seeds.
     suspects : dict
-        ``tracker -> covviz.diagnosis.score_suspects`` totals over every run.
+        ``tracker -> covviz.diagnosis.drift.score_suspects`` totals over every run.
     """
 
     results_dir: Path
@@ -414,7 +414,7 @@ def summarize(results_dir: str | Path) -> Summary:
         )
 
     # ---- failures: causes of the losses, and the label-free suspects against them ----------
-    from covviz.diagnosis import score_suspects
+    from covviz.diagnosis.drift import score_suspects
 
     causes: dict = {}
     by_seq: dict = {}
@@ -451,7 +451,7 @@ def summarize(results_dir: str | Path) -> Summary:
 
 def _failure_section(summary: Summary) -> list[str]:
     """Losses by diagnosed cause (overall and per sequence) and how far the label-free suspects can be trusted."""
-    from covviz.diagnosis import CAUSES, MATCH_AFTER, MATCH_BEFORE
+    from covviz.diagnosis.drift import CAUSES, MATCH_AFTER, MATCH_BEFORE
 
     if not summary.suspects:
         return []
@@ -462,7 +462,7 @@ def _failure_section(summary: Summary) -> list[str]:
         "",
         (
             "Every loss of track (IoU below 0.1) was diagnosed from the frames between the start of its drift and "
-            "the loss (`covviz.diagnosis`; the rules and their thresholds are in the results' `diagnosis_config`). "
+            "the loss (`covviz.diagnosis.drift`; the rules and their thresholds are in the results' `diagnosis_config`). "
             "Counts over all sequences and seeds; *unknown*: no rule of the vocabulary held."
         ),
         "",
@@ -625,7 +625,7 @@ def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
     L += [
         "## Definitions and thresholds",
         "",
-        "Named constants (of `covviz.metrics` and `covviz.report`), as used for these results:",
+        "Named constants (of `covviz.metrics` and `covviz.experiments.report`), as used for these results:",
         "",
         (
             f"- `IOU_THRESHOLDS` = {len(iou_t)} values {iou_t[0]:g}, {iou_t[1]:g}, …, {iou_t[-1]:g}. "

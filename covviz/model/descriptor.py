@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from covviz.features import patch_features, warp_patches
-from covviz.spd import regularize, sym
+from covviz.model.features import patch_features, warp_patches
+from covviz.model.spd import regularize, sym
 
 __all__ = ["DEFAULT_EPS", "QUADRANTS", "covariance", "descriptors", "quadrant_covariances"]
 
@@ -152,7 +152,7 @@ def descriptors(
 ):
     """Covariance descriptors of the regions of a batch of poses, ``(n, 9, 9)``.
 
-    Warps each region to ``size x size`` (:func:`~covviz.features.warp_patches`),
+    Warps each region to ``size x size`` (:func:`~covviz.model.features.warp_patches`),
     computes the 9 features and their regularised covariance.
     """
     P = warp_patches(gray, poses, base_wh, size, 1, step)

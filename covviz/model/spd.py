@@ -84,12 +84,12 @@ def check_spd(A: np.ndarray, name: str = "A") -> np.ndarray:
     A = _check_square(A, name)
     scale = np.maximum(np.abs(A).max(axis=(-1, -2), keepdims=True), np.finfo(float).tiny)
     if np.any(np.abs(A - np.swapaxes(A, -1, -2)) > 1e-8 * scale):
-        raise ValueError(f"{name} is not symmetric; symmetrise it with covviz.spd.sym")
+        raise ValueError(f"{name} is not symmetric; symmetrise it with covviz.model.spd.sym")
     w = np.linalg.eigvalsh(A)
     if np.any(w <= 0):
         raise ValueError(
             f"{name} is not positive-definite (smallest eigenvalue {w.min():.3g}); "
-            "regularise it with covviz.spd.regularize"
+            "regularise it with covviz.model.spd.regularize"
         )
     return A
 
@@ -107,7 +107,7 @@ def _positive(w: np.ndarray) -> np.ndarray:
     if np.any(w <= 0):
         raise ValueError(
             f"matrix is not positive-definite (smallest eigenvalue {w.min():.3g}); "
-            "regularise it with covviz.spd.regularize"
+            "regularise it with covviz.model.spd.regularize"
         )
     return w
 
@@ -220,7 +220,7 @@ def _whiten(A: np.ndarray, B: np.ndarray) -> np.ndarray:
         L = np.linalg.cholesky(A)
     except np.linalg.LinAlgError as exc:
         raise ValueError(
-            "first argument is not positive-definite; regularise it with covviz.spd.regularize"
+            "first argument is not positive-definite; regularise it with covviz.model.spd.regularize"
         ) from exc
     Li = np.linalg.inv(L)  # triangular inverse: cheaper than two batched solves for small d
     return sym(Li @ B @ np.swapaxes(Li, -1, -2))
@@ -344,7 +344,7 @@ def distance_jbld(A: np.ndarray, B: np.ndarray, logdet_a=None, logdet_b=None) ->
     if np.any(J < -1e-9):
         raise ValueError(
             f"negative LogDet divergence ({np.min(J):.3g}): an input is not positive-definite; "
-            "regularise it with covviz.spd.regularize"
+            "regularise it with covviz.model.spd.regularize"
         )
     return np.sqrt(8.0 * np.maximum(J, 0.0))
 

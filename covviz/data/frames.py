@@ -3,8 +3,8 @@
 :class:`Frame` is one frame (0-based index, RGB pixels, ground truth, time);
 :class:`Sequence` a named, indexable, lazily read list of them;
 :class:`SequenceError` the one-line "cannot read this sequence" error. The
-sources — OTB/VOT folders, videos (:mod:`covviz.sequences`) and the synthetic
-generator (:mod:`covviz.synthetic`) — build on these.
+sources — OTB/VOT folders, videos (:mod:`covviz.data.sequences`) and the synthetic
+generator (:mod:`covviz.data.synthetic`) — build on these.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ runs it and returns its boxes and metrics as a :class:`JobOutput`, which the
 caller (the bench's client) writes to disk. Nothing here writes results, so a
 job can run on a machine that does not see the results folder.
 
-Every job runs in a fresh Python process, ``python -m covviz.jobs LABEL``
+Every job runs in a fresh Python process, ``python -m covviz.experiments.jobs LABEL``
 (:class:`JobProcess`): OpenCV's MIL and TLD keep random state between runs in
 one process, so a fresh process is what makes a result independent of which
 jobs ran before it and where (a local slot or any Dask worker). The process
@@ -187,7 +187,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
     import numpy as np
 
     from covviz import __version__
-    from covviz.diagnosis import Diagnoser
+    from covviz.diagnosis.drift import Diagnoser
     from covviz.metrics import (
         IOU_THRESHOLDS,
         ON_TRACK_GAMMA,
@@ -197,7 +197,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
         success_curve,
     )
     from covviz.runner import BackgroundObserver, run
-    from covviz.sequences import open_sequence
+    from covviz.data.sequences import open_sequence
     from covviz.threads import limit_threads
 
     seq = open_sequence(job.path)
@@ -272,7 +272,7 @@ def describe_exit(code: int | None) -> str:
 
 
 class JobProcess:
-    """One job in a fresh ``python -m covviz.jobs`` process (see the module docstring).
+    """One job in a fresh ``python -m covviz.experiments.jobs`` process (see the module docstring).
 
     Start it, wait until :meth:`fileno` is readable (or poll :meth:`done`), then
     :meth:`collect` its output. :meth:`kill` ends it at once.
@@ -284,7 +284,7 @@ class JobProcess:
         self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 - closed in _stderr_tail()
         with sigint_deferred():
             self._proc = subprocess.Popen(
-                [sys.executable, "-m", "covviz.jobs", job.label],
+                [sys.executable, "-m", "covviz.experiments.jobs", job.label],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 stderr=self._stderr,
@@ -382,7 +382,7 @@ def run_job_process(job: Job, threads: int | None, executor: str, slots: int, po
 
 
 # --------------------------------------------------------------------------- #
-# the process side: python -m covviz.jobs LABEL
+# the process side: python -m covviz.experiments.jobs LABEL
 # --------------------------------------------------------------------------- #
 def _exit_when_parent_goes(stdin) -> None:
     """Block until stdin closes (the parent ended or went away), then end this process."""
@@ -410,7 +410,7 @@ def _main() -> None:
 
 if __name__ == "__main__":
     # Run the imported module's _main, not this __main__ copy's: the output's classes
-    # must pickle as covviz.jobs.*, which the parent can load.
-    from covviz.jobs import _main as main
+    # must pickle as covviz.experiments.jobs.*, which the parent can load.
+    from covviz.experiments.jobs import _main as main
 
     main()

@@ -229,7 +229,7 @@ def patch_features(
         rescales six of the nine, all but ``x, y`` and the angle).
     quadrants : bool
         Return the pixels grouped by quadrant (``S`` must be even), the layout
-        :func:`covviz.descriptor.quadrant_covariances` reads without a copy.
+        :func:`covviz.model.descriptor.quadrant_covariances` reads without a copy.
         The values are those of the default layout, pixel for pixel.
 
     Returns

@@ -4,7 +4,7 @@ The search space is declared once, next to the config
 (:data:`covviz.trackers.manifold.SEARCH_SPACE`, :func:`~covviz.trackers.manifold.suggest_config`).
 A trial is one configuration, scored by its **mean success AUC over the
 sequences and tuning seeds** (seeds ``0 … K-1``, the bench's seed rule). Its jobs
-run through the bench's executors (:mod:`covviz.jobs`: a local pool or
+run through the bench's executors (:mod:`covviz.experiments.jobs`: a local pool or
 ``--cluster``), in sequence order; after each sequence the trial reports the mean
 so far, and Optuna's median pruner stops a trial that is below the median of the
 earlier ones at the same point (not on the first sequence, nor in the first
@@ -44,14 +44,14 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-from covviz.bench import BenchError, make_executor, read_sequences, run_with_progress
-from covviz.cluster import require
+from covviz.experiments.bench import BenchError, make_executor, read_sequences, run_with_progress
+from covviz.experiments.cluster import require
 from covviz.errors import InputError
-from covviz.jobs import Job
+from covviz.experiments.jobs import Job
 
 __all__ = ["TuneError", "TuneSettings", "tune"]
 
-log = logging.getLogger("covviz.tune")
+log = logging.getLogger("covviz.experiments.tune")
 
 #: Trials that are never pruned (the pruner's reference needs some finished trials).
 PRUNE_STARTUP_TRIALS = 5

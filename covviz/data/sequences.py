@@ -11,14 +11,14 @@ memory at a time):
   polygon becomes its axis-aligned bounding box.
 * :class:`VideoSequence` — a video file or an image glob, with the initial box
   given by the user (``--box x,y,w,h``, 0-based pixels).
-* :class:`SyntheticSequence` (:mod:`covviz.synthetic`) — the embedded
+* :class:`SyntheticSequence` (:mod:`covviz.data.synthetic`) — the embedded
   default: a deterministic textured target on a cluttered background, with
   translation, scale and rotation, a stretch of fast pose change, an
   illumination change and a partial occlusion; ``synthetic:NAME`` is one of
-  its controlled failures (:mod:`covviz.scenarios`).
+  its controlled failures (:mod:`covviz.data.scenarios`).
 
 :class:`Frame`, :class:`Sequence` and :class:`SequenceError` live in
-:mod:`covviz.frames` and are re-exported here, with the synthetic classes.
+:mod:`covviz.data.frames` and are re-exported here, with the synthetic classes.
 
 Boxes are returned in 0-based pixels (see :mod:`covviz.records`); rows of
 ground truth that are missing or invalid are ``nan``.
@@ -33,8 +33,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from covviz.frames import Frame, Sequence, SequenceError
-from covviz.synthetic import SyntheticConfig, SyntheticSequence
+from covviz.data.frames import Frame, Sequence, SequenceError
+from covviz.data.synthetic import SyntheticConfig, SyntheticSequence
 
 __all__ = [
     "Frame",
@@ -373,7 +373,7 @@ def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
     source : str or Path, optional
         ``None`` or ``"synthetic"``: the embedded synthetic default;
         ``"synthetic:NAME"``: one of its failure scenarios
-        (:data:`covviz.scenarios.SCENARIOS`). A folder
+        (:data:`covviz.data.scenarios.SCENARIOS`). A folder
         with ``img/``: OTB. A folder with ``groundtruth.txt``: VOT. A video file
         or an image glob: needs ``box``.
     box : array-like, shape (4,), optional
@@ -388,7 +388,7 @@ def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
     if source is None or str(source) == "synthetic":
         seq: Sequence = SyntheticSequence()
     elif str(source).startswith("synthetic:"):
-        from covviz.scenarios import open_scenario
+        from covviz.data.scenarios import open_scenario
 
         seq = open_scenario(str(source).partition(":")[2])
     else:

@@ -7,7 +7,7 @@ The cluster is given as
 * ``path/to/scheduler.json``: its scheduler file (``dask scheduler --scheduler-file``);
 * ``local:N``: a :class:`distributed.LocalCluster` of N worker processes on this machine.
 
-Each Dask task runs one job in a fresh process (:func:`covviz.jobs.run_job_process`,
+Each Dask task runs one job in a fresh process (:func:`covviz.experiments.jobs.run_job_process`,
 with one OpenCV/BLAS thread), so a result does not depend on which worker ran it
 nor on what ran there before. The task returns the job's boxes and metrics; the
 client (``covviz bench``) writes them, so workers need neither the results
@@ -20,7 +20,7 @@ own process died (the OOM killer) is submitted again up to ``retries`` times.
 Workers that leave or join are logged and listed in the summary.
 
 Dask and Optuna are the optional extra ``cluster`` (``pip install 'covviz[cluster]'``),
-imported only here and in :mod:`covviz.tune`, only when asked for.
+imported only here and in :mod:`covviz.experiments.tune`, only when asked for.
 """
 
 from __future__ import annotations
@@ -33,11 +33,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from covviz.errors import InputError
-from covviz.jobs import Job, JobError, JobProcessDied, Outcome, run_job_process
+from covviz.experiments.jobs import Job, JobError, JobProcessDied, Outcome, run_job_process
 
 __all__ = ["ClusterError", "DaskExecutor", "dask_executor", "require"]
 
-log = logging.getLogger("covviz.cluster")
+log = logging.getLogger("covviz.experiments.cluster")
 
 #: Seconds to wait for a scheduler to answer and for its first worker.
 CONNECT_TIMEOUT = 30

@@ -36,7 +36,7 @@ from covviz import __version__
 from covviz.errors import InputError, WriteError
 from covviz.metrics import evaluate, nothing_to_score
 from covviz.records import RunResult
-from covviz.sequences import read_boxes, write_boxes
+from covviz.data.sequences import read_boxes, write_boxes
 
 __all__ = [
     "FORMAT",
@@ -93,7 +93,7 @@ def _atomic_write(path: Path, text: str) -> None:
 
 
 def box_lines(boxes: np.ndarray) -> list[str]:
-    """The lines of a boxes file for 0-based ``boxes``, exactly as :func:`~covviz.sequences.write_boxes` writes them."""
+    """The lines of a boxes file for 0-based ``boxes``, exactly as :func:`~covviz.data.sequences.write_boxes` writes them."""
     b = np.array(boxes, dtype=np.float64, copy=True).reshape(-1, 4)
     b[:, :2] += 1.0
     return [",".join(f"{v:.2f}" for v in row) + "\n" for row in b]

@@ -1,7 +1,7 @@
 """The embedded synthetic sequence: a deterministic textured target with exact ground truth.
 
 The default sequence of ``covviz track`` on a fresh machine, and the base of
-the controlled failures of :mod:`covviz.scenarios`.
+the controlled failures of :mod:`covviz.data.scenarios`.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from covviz.frames import Sequence
+from covviz.data.frames import Sequence
 
 __all__ = ["SyntheticConfig", "SyntheticSequence"]
 
@@ -59,7 +59,7 @@ class SyntheticSequence(Sequence):
     same frames, bit for bit. Ground truth is the unrotated box of the target's
     size at its centre (how OTB annotates), in 0-based pixels.
 
-    ``scenario`` (a :class:`covviz.scenarios.Scenario`; its own config unless
+    ``scenario`` (a :class:`covviz.data.scenarios.Scenario`; its own config unless
     ``config`` is given) injects one cause of failure at a known frame: it may
     change the path, the target's texture and what is drawn over the frame;
     :attr:`scenario_truth` says what it injected, frame by frame.
@@ -84,7 +84,7 @@ class SyntheticSequence(Sequence):
 
     @property
     def scenario_truth(self):
-        """The injected cause frame by frame (:class:`covviz.scenarios.ScenarioTruth`), or None."""
+        """The injected cause frame by frame (:class:`covviz.data.scenarios.ScenarioTruth`), or None."""
         return None if self.scenario is None else self.scenario.truth(self)
 
     @property

@@ -1,0 +1,1 @@
+"""Frames and ground truth in: OTB / VOT folders, videos, the synthetic default and its failure scenarios."""
