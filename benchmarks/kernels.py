@@ -62,7 +62,7 @@ def stage_inputs(seq, frame: int, n: int, rng):
     from covviz.model import spd
     from covviz.model.descriptor import quadrant_covariances
     from covviz.model.features import patch_features, warp_patches
-    from covviz.trackers.base import to_gray
+    from covviz.model.image import to_gray
 
     f = seq.frame(frame)
     gray = to_gray(f.image)
@@ -222,12 +222,11 @@ def oracle64(P: np.ndarray, eps: float):
 
 def print_accuracy(folder: Path, rng) -> None:
     """Largest errors against :func:`oracle64` on real frames: the kernels and the numpy path."""
-    from covviz.model import kernels
-    from covviz.model import spd
+    from covviz.data.sequences import open_sequence
+    from covviz.model import kernels, spd
     from covviz.model.descriptor import quadrant_covariances
     from covviz.model.features import patch_features, warp_patches
-    from covviz.data.sequences import open_sequence
-    from covviz.trackers.base import to_gray
+    from covviz.model.image import to_gray
     from covviz.trackers.manifold import quadrant_distances, riemann_distance_to_templates
 
     def frob(A, B):

@@ -45,9 +45,9 @@ from pathlib import Path
 import numpy as np
 import psutil
 
+from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.diagnosis.drift import Diagnoser
 from covviz.runner import BackgroundObserver, run
-from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz.logger import LoggerConfig, RerunLogger
 from covviz.viz.sinks import attach_sinks, new_recording

@@ -111,8 +111,8 @@ def main(argv=None) -> int:
 
     import cv2
 
-    from covviz.model import kernels
     from covviz.data.sequences import open_sequence
+    from covviz.model import kernels
     from covviz.trackers import make_tracker
     from covviz.trackers.manifold import NEW_TERMS_OFF, ManifoldConfig, ManifoldTracker
 

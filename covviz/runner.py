@@ -33,8 +33,8 @@ from collections.abc import Sequence as Seq
 
 import numpy as np
 
-from covviz.errors import WriteError
 from covviz.data.frames import Frame, Sequence
+from covviz.errors import WriteError
 from covviz.records import FrameRecord, RunResult
 from covviz.signals import shielded
 

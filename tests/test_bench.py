@@ -18,12 +18,12 @@ import cv2
 import numpy as np
 import pytest
 
+from covviz.cli import main
+from covviz.data.sequences import SyntheticConfig, SyntheticSequence, read_boxes, write_boxes
 from covviz.experiments import jobs as jobs_mod
 from covviz.experiments.bench import BenchError, Job, bench, find_sequences, plan_jobs
-from covviz.cli import main
 from covviz.experiments.report import Stat, write_report
 from covviz.experiments.results import load_result, result_paths
-from covviz.data.sequences import SyntheticConfig, SyntheticSequence, read_boxes, write_boxes
 
 TRACKERS = ["identity", "csrt", "manifold"]
 SEEDS = 2
@@ -429,8 +429,8 @@ def test_stat_mean_std_over_seeds():
 
 
 def test_failure_counter_reads_record_extras():
-    from covviz.records import FrameRecord
     from covviz.data.sequences import Frame
+    from covviz.records import FrameRecord
 
     fc = jobs_mod._FailureCounter()
     for i, failed in enumerate([False, True, False, True]):

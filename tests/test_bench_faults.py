@@ -20,8 +20,8 @@ import pytest
 from test_bench import write_otb
 
 import covviz
-from covviz.experiments.bench import BenchError, bench, lock_results_folder
 from covviz.cli import main
+from covviz.experiments.bench import BenchError, bench, lock_results_folder
 from covviz.experiments.results import load_result
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")

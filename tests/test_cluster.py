@@ -32,8 +32,8 @@ from test_bench import write_otb
 from test_bench_faults import descendants
 
 import covviz
-from covviz.experiments.bench import bench
 from covviz.cli import main
+from covviz.experiments.bench import bench
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 

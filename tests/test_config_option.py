@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 from test_bench import write_otb
 
-from covviz.experiments.bench import bench
 from covviz.cli import main
+from covviz.experiments.bench import bench
 from covviz.experiments.results import load_result, result_paths
 from covviz.trackers.manifold import PAPER_LIKELIHOOD, ManifoldConfig
 

@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from covviz.model import spd
+from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.diagnosis.drift import (
     CAUSES,
     LABELS,
@@ -21,8 +21,8 @@ from covviz.diagnosis.drift import (
     diagnose,
     score_suspects,
 )
+from covviz.model import spd
 from covviz.runner import run_many
-from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers.base import IdentityTracker
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 

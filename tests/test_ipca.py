@@ -13,9 +13,9 @@ from scipy.linalg import subspace_angles
 from scipy.ndimage import map_coordinates
 from scipy.special import logsumexp
 
+from covviz.data.sequences import OTBSequence, SyntheticConfig, SyntheticSequence
 from covviz.metrics import evaluate
 from covviz.runner import run
-from covviz.data.sequences import OTBSequence, SyntheticConfig, SyntheticSequence
 from covviz.trackers.base import IdentityTracker
 from covviz.trackers.ipca import (
     AppearanceModel,

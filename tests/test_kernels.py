@@ -29,12 +29,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from covviz.model import kernels
-from covviz.model import spd
+from covviz.data.sequences import open_sequence
+from covviz.model import kernels, spd
 from covviz.model.descriptor import covariance, quadrant_covariances
 from covviz.model.features import FEATURE_SCALE, patch_features, warp_patches
-from covviz.data.sequences import open_sequence
-from covviz.trackers.base import to_gray
+from covviz.model.image import to_gray
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 
 pytestmark = pytest.mark.skipif(kernels.numba is None, reason="numba is not installed")
@@ -167,7 +166,7 @@ def test_no_jit_environment_selects_the_numpy_path():
         "from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker\n"
         "from covviz.model.features import warp_patches, patch_features, normalize_gradients\n"
         "from covviz.model.descriptor import quadrant_covariances\n"
-        "from covviz.trackers.base import to_gray\n"
+        "from covviz.model.image import to_gray\n"
         "import sys\n"
         "assert kernels.JIT_ENABLED is False and 'numba' not in sys.modules\n"
         "seq = SyntheticSequence()\n"

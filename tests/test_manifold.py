@@ -16,13 +16,14 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
+from covviz.data.sequences import SyntheticSequence
+from covviz.metrics import iou
 from covviz.model import spd
 from covviz.model.features import pose_corners, pose_to_box
-from covviz.metrics import iou
+from covviz.model.image import check_init_box
 from covviz.model.observation import quadrant_term
 from covviz.records import STAGES, FrameRecord
-from covviz.data.sequences import SyntheticSequence
-from covviz.trackers.base import IdentityTracker, Tracker, check_init_box
+from covviz.trackers.base import IdentityTracker, Tracker
 from covviz.trackers.manifold import PAPER_LIKELIHOOD, ManifoldConfig, ManifoldTracker, make
 
 D = 9

@@ -8,11 +8,11 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
+from covviz.data.sequences import SyntheticSequence
 from covviz.model import spd
 from covviz.model.descriptor import quadrant_covariances
 from covviz.model.features import normalize_gradients, patch_features, warp_patches
 from covviz.model.observation import OBSERVE_CHUNK, ObservationModel, box_to_pose, quadrant_term
-from covviz.data.sequences import SyntheticSequence
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 
 

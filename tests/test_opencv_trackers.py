@@ -13,9 +13,9 @@ import cv2
 import numpy as np
 import pytest
 
+from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.metrics import center_error, iou
 from covviz.runner import run
-from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers import TRACKERS, Tracker, make_tracker
 from covviz.trackers import opencv as ocv
 

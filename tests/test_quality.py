@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from covviz.data.sequences import SyntheticSequence
 from covviz.model import fgbg
 from covviz.model.dynamics import template_walk
 from covviz.model.observation import ObservationModel, QuadrantState, quadrant_term, update_quadrant_state
 from covviz.model.particles import logsumexp
-from covviz.data.sequences import SyntheticSequence
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker, _parabolic_step, make_paper
 
 D = 9

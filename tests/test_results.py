@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
+from covviz.experiments.results import FORMAT, ResultError, load_result, result_paths, save_result
 from covviz.metrics import evaluate
 from covviz.records import RunResult
-from covviz.experiments.results import FORMAT, ResultError, load_result, result_paths, save_result
 
 # Boxes are written with 2 decimals: half a unit of the last place, plus float slack.
 BOX_ATOL = 0.005 + 1e-9

@@ -30,10 +30,6 @@ from viz_helpers import read_recording
 
 import covviz
 from covviz import cli
-from covviz.errors import WriteError
-from covviz.records import RunResult
-from covviz.experiments.results import ResultWriter, box_lines, load_result, result_paths, save_result
-from covviz.runner import FreeSpaceGuard, ResultCollector, run
 from covviz.data.sequences import (
     SyntheticConfig,
     SyntheticSequence,
@@ -41,6 +37,10 @@ from covviz.data.sequences import (
     open_sequence,
     write_boxes,
 )
+from covviz.errors import WriteError
+from covviz.experiments.results import ResultWriter, box_lines, load_result, result_paths, save_result
+from covviz.records import RunResult
+from covviz.runner import FreeSpaceGuard, ResultCollector, run
 from covviz.trackers.base import IdentityTracker
 from covviz.viz import paths as P
 

@@ -6,8 +6,8 @@ import threading
 
 import pytest
 
-from covviz.runner import BackgroundObserver, ResultCollector, run
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
+from covviz.runner import BackgroundObserver, ResultCollector, run
 from covviz.trackers.base import IdentityTracker
 
 

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from covviz import cli
+from covviz.data.scenarios import CALM, CAUSES, SCENARIOS, Scenario, get_scenario, open_scenario
+from covviz.data.sequences import SequenceError, SyntheticSequence, open_sequence
 from covviz.diagnosis.drift import Diagnoser
 from covviz.diagnosis.events import LOST_IOU
 from covviz.metrics import iou
-from covviz.data.scenarios import CALM, CAUSES, SCENARIOS, Scenario, get_scenario, open_scenario
-from covviz.data.sequences import SequenceError, SyntheticSequence, open_sequence
 from covviz.trackers.manifold import make
 
 NAMES = list(SCENARIOS)

@@ -23,8 +23,8 @@ from test_bench import write_otb
 import covviz
 from covviz.cli import main
 from covviz.experiments.jobs import Job, JobOutput, Outcome
-from covviz.trackers.manifold import SEARCH_SPACE, ManifoldConfig
 from covviz.experiments.tune import TuneSettings, score_config
+from covviz.trackers.manifold import SEARCH_SPACE, ManifoldConfig
 
 ENV = {**os.environ, "PYTHONPATH": str(Path(covviz.__file__).resolve().parent.parent)}
 FRAMES = {"alpha": 8, "beta": 6}

@@ -17,6 +17,7 @@ import pytest
 from viz_helpers import boxes, read_recording, rrd_verify
 
 from covviz import cli
+from covviz.cli.common import default_recording_path
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence, write_boxes
 from covviz.viz import paths as P
 
@@ -71,7 +72,7 @@ def test_track_default_recording_path(tmp_path, monkeypatch):
     code, _, err = run_main(["track", "--max-frames", "3", *FAST, "--out", "runs", "--seed", "2"])
     assert code == 0, err
     assert (tmp_path / "recordings" / "synthetic-manifold-s2.rrd").is_file()
-    assert cli.default_recording_path("a b/c", ["manifold", "ipca"], 1) == Path(
+    assert default_recording_path("a b/c", ["manifold", "ipca"], 1) == Path(
         "recordings/a_b_c-manifold+ipca-s1.rrd"
     )
 

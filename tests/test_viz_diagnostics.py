@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from covviz.model.observation import box_to_pose
-from covviz.records import FrameRecord
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
+from covviz.model.observation import box_to_pose
 from covviz.model.spd import distance_riemann, expm, logm, mean_riemann
+from covviz.records import FrameRecord
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz.diagnostics import (
     background_poses,

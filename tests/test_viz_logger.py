@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from viz_helpers import boxes, last, read_recording, rrd_verify, scalar_series, static_text, texts
 
+from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.metrics import center_error, iou
 from covviz.records import FrameRecord
 from covviz.runner import run_many
-from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.trackers.base import IdentityTracker
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz import paths as P

@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from covviz.runner import run
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
+from covviz.runner import run
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz.logger import LoggerConfig, RerunLogger
 from covviz.viz.sinks import attach_sinks, new_recording

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from covviz.data.frames import SequenceError
-from covviz.metrics import iou
 from covviz.data.synthetic import SyntheticConfig, SyntheticSequence
+from covviz.metrics import iou
 
 __all__ = [
     "CALM",

@@ -37,10 +37,10 @@ import numpy as np
 
 from covviz.diagnosis.events import EVENT_DEFAULTS, Event, EventConfig, EventDetector
 from covviz.metrics import iou
+from covviz.model.image import to_gray
 from covviz.model.observation import ObservationModel, box_to_pose
 from covviz.model.particles import effective_sample_size
 from covviz.model.spd import distance_jbld, distance_riemann, logdet, mean_logeuclid
-from covviz.trackers.base import to_gray
 
 __all__ = [
     "CAUSES",

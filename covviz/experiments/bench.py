@@ -62,7 +62,15 @@ from pathlib import Path
 
 from covviz import __version__
 from covviz.errors import InputError
-from covviz.experiments.jobs import Job, JobError, JobOutput, JobProcess, JobProcessDied, Outcome, sigint_deferred
+from covviz.experiments.jobs import (
+    Job,
+    JobError,
+    JobOutput,
+    JobProcess,
+    JobProcessDied,
+    Outcome,
+    sigint_deferred,
+)
 from covviz.experiments.results import MANIFEST_FORMAT, MANIFEST_NAME, read_manifest, write_manifest
 
 __all__ = [

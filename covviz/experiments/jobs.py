@@ -187,6 +187,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
     import numpy as np
 
     from covviz import __version__
+    from covviz.data.sequences import open_sequence
     from covviz.diagnosis.drift import Diagnoser
     from covviz.metrics import (
         IOU_THRESHOLDS,
@@ -197,7 +198,6 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
         success_curve,
     )
     from covviz.runner import BackgroundObserver, run
-    from covviz.data.sequences import open_sequence
     from covviz.threads import limit_threads
 
     seq = open_sequence(job.path)

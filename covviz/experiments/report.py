@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from covviz.metrics import IOU_THRESHOLDS, ON_TRACK_GAMMA, PRECISION_AT, PRECISION_THRESHOLDS
 from covviz.experiments.results import ResultError, load_result, read_manifest
+from covviz.metrics import IOU_THRESHOLDS, ON_TRACK_GAMMA, PRECISION_AT, PRECISION_THRESHOLDS
 
 __all__ = ["BASELINE", "OURS", "REPORT_NAME", "Run", "Summary", "load_runs", "render", "summarize", "write_report"]
 

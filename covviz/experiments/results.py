@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from covviz import __version__
+from covviz.data.sequences import read_boxes, write_boxes
 from covviz.errors import InputError, WriteError
 from covviz.metrics import evaluate, nothing_to_score
 from covviz.records import RunResult
-from covviz.data.sequences import read_boxes, write_boxes
 
 __all__ = [
     "FORMAT",

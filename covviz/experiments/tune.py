@@ -44,9 +44,9 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+from covviz.errors import InputError
 from covviz.experiments.bench import BenchError, make_executor, read_sequences, run_with_progress
 from covviz.experiments.cluster import require
-from covviz.errors import InputError
 from covviz.experiments.jobs import Job
 
 __all__ = ["TuneError", "TuneSettings", "tune"]

@@ -61,9 +61,9 @@ import numpy as np
 from covviz.model import fgbg
 from covviz.model.descriptor import covariance, quadrant_covariances
 from covviz.model.features import N_FEATURES, normalize_gradients, patch_features, pose_to_box, warp_patches
+from covviz.model.image import check_init_box, to_gray
 from covviz.model.particles import log_likelihood
 from covviz.model.spd import distance_jbld, distance_riemann_log, logdet
-from covviz.trackers.base import check_init_box, to_gray
 
 __all__ = [
     "OBSERVE_CHUNK",

@@ -98,9 +98,9 @@ import cv2
 import numpy as np
 
 from covviz.model.features import REMAP_MAX_ROWS, remap_stacked
+from covviz.model.image import check_init_box, to_gray
 from covviz.model.particles import effective_sample_size, normalize_log_weights
 from covviz.records import FrameRecord
-from covviz.trackers.base import check_init_box, to_gray
 
 __all__ = [
     "GRIDS",

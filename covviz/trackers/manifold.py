@@ -75,6 +75,7 @@ from covviz.model.dynamics import (
     template_walk,
 )
 from covviz.model.features import N_FEATURES, pose_corners, pose_to_box
+from covviz.model.image import check_init_box
 from covviz.model.observation import ObservationModel, QuadrantState, update_quadrant_state
 from covviz.model.particles import (
     ParticleSet,
@@ -84,9 +85,8 @@ from covviz.model.particles import (
     normalize_log_weights,
     systematic_resample,
 )
-from covviz.records import FrameRecord
 from covviz.model.spd import logm
-from covviz.trackers.base import check_init_box
+from covviz.records import FrameRecord
 
 __all__ = ["ManifoldConfig", "ManifoldTracker"]
 

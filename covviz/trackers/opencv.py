@@ -46,8 +46,8 @@ import time
 import cv2
 import numpy as np
 
+from covviz.model.image import check_init_box
 from covviz.records import FrameRecord
-from covviz.trackers.base import check_init_box
 
 __all__ = [
     "CONSTRUCTORS",

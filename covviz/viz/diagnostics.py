@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from covviz.model.observation import ObservationModel
-from covviz.records import FrameRecord
 from covviz.model.spd import expm, expm_taylor, spread_riemann
+from covviz.records import FrameRecord
 
 __all__ = [
     "CLOUD_KINDS",

@@ -33,12 +33,12 @@ import rerun as rr
 from covviz import __version__
 from covviz.diagnosis.drift import Diagnoser, DiagnosisConfig
 from covviz.embedding import AlignedMDS, distance_matrix, stress1
-from covviz.model.features import pose_corners
 from covviz.metrics import center_error, evaluate, iou, nothing_to_score
+from covviz.model.features import pose_corners
 from covviz.model.observation import ObservationModel, box_to_pose
 from covviz.model.particles import effective_sample_size
-from covviz.records import FrameRecord, frame_number
 from covviz.model.spd import logm
+from covviz.records import FrameRecord, frame_number
 from covviz.threads import limit_threads
 from covviz.viz import paths as P
 from covviz.viz import why

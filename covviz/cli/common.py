@@ -1,0 +1,274 @@
+"""Shared pieces of the command line: argument types, output checks, config files, tracker construction."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import shlex
+from pathlib import Path
+
+import numpy as np
+
+from covviz.errors import InputError
+
+log = logging.getLogger("covviz")
+
+EXIT_BAD_INPUT = 2
+
+EXIT_INTERRUPTED = 130
+
+class UsageError(InputError):
+    """Bad input on the command line: printed as one line, exit code 2."""
+
+
+# --------------------------------------------------------------------------- #
+# argument types
+# --------------------------------------------------------------------------- #
+
+def parse_box(text: str) -> np.ndarray:
+    """``"x,y,w,h"`` -> array; argparse type for ``--box``."""
+    try:
+        vals = [float(v) for v in text.replace(" ", ",").split(",") if v]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--box must be 4 numbers x,y,w,h; got {text!r}") from None
+    if len(vals) != 4:
+        raise argparse.ArgumentTypeError(f"--box must be 4 numbers x,y,w,h; got {text!r}")
+    parts = [v for v in text.replace(" ", ",").split(",") if v]
+    for name, v, raw in zip("xywh", vals, parts):
+        if math.isnan(v):
+            raise argparse.ArgumentTypeError(f"{name} is not a number ({raw!r}); give 4 numbers x,y,w,h in pixels")
+        if math.isinf(v):
+            raise argparse.ArgumentTypeError(f"{name}={raw} is not a finite number; give x,y,w,h in pixels")
+    return np.array(vals)
+
+def _int_at_least(lo: int, what: str):
+    """argparse type: an integer ``>= lo``; ``what`` names it in the error."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if v < lo:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {v}")
+        return v
+
+    return parse
+
+positive_int = _int_at_least(1, "a positive integer")
+
+nonneg_int = _int_at_least(0, "an integer >= 0")
+
+def tracker_list(text: str) -> list[str]:
+    """argparse type for ``--trackers a,b``: the checked names."""
+    from covviz.trackers import tracker_names
+
+    try:
+        return tracker_names(text.split(","))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+# --------------------------------------------------------------------------- #
+# track
+# --------------------------------------------------------------------------- #
+
+def add_config_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--config",
+        type=Path,
+        metavar="FILE.json",
+        help="ManifoldConfig of the manifold trackers: a JSON object of its fields, the others default "
+        "(e.g. the best.json of 'covviz tune'); --particles overrides its n_particles",
+    )
+
+
+# Rerun options in the style of rr.script_add_args, as our own flags: several sinks at once
+# (a file and a viewer), and no --headless/--stdout, which do not fit a tracking run.
+
+def add_recording_args(p: argparse.ArgumentParser, mds_options: bool = True) -> None:
+    g = p.add_argument_group("recording (Rerun)")
+    g.add_argument(
+        "--save",
+        type=Path,
+        metavar="PATH",
+        help="write the recording to this .rrd file (default: recordings/SEQUENCE-TRACKERS-sSEED.rrd)",
+    )
+    g.add_argument("--no-save", action="store_true", help="write no recording file")
+    v = g.add_mutually_exclusive_group()
+    v.add_argument("--spawn", action="store_true", help="also stream to a new Rerun viewer window")
+    v.add_argument(
+        "--connect",
+        nargs="?",
+        const=True,
+        default=None,
+        metavar="URL",
+        help="also stream to a running viewer (default URL rerun+http://127.0.0.1:9876/proxy)",
+    )
+    v.add_argument("--serve-web", action="store_true", help="also host a web viewer and stream to it")
+    if mds_options:
+        g.add_argument(
+            "--mds-every",
+            type=nonneg_int,
+            default=10,
+            metavar="K",
+            help="MDS picture of the template cloud every K frames (default 10; 0: never)",
+        )
+        g.add_argument(
+            "--likelihood-every",
+            type=nonneg_int,
+            default=None,
+            metavar="K",
+            help="likelihood map around the estimate every K frames (default: as --mds-every; 0: never)",
+        )
+
+
+#: Upper estimate of recording bytes per frame and tracker (600 particles, 320x240: ~28 KB measured).
+
+RECORDING_BYTES_PER_FRAME = 40_000
+#: Free space kept on top of the estimate.
+
+RECORDING_MARGIN_BYTES = 20_000_000
+
+def _mkdirs(path: Path, created: list[Path] | None) -> None:
+    """``mkdir -p path``, noting in ``created`` (top first) the folders it made, for :func:`_remove_empty`."""
+    missing = []
+    p = Path(path)
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    Path(path).mkdir(parents=True, exist_ok=True)
+    if created is not None:
+        created.extend(reversed(missing))
+
+def _remove_empty(created: list[Path]) -> None:
+    """Remove the folders a command made that are still empty (an error before the run wrote anything)."""
+    for d in reversed(created):
+        try:
+            d.rmdir()
+        except OSError:
+            pass
+
+def _check_recording_path(path: Path, n_frames: int, n_trackers: int, created: list[Path] | None = None) -> None:
+    """Fail before tracking if the recording cannot be written (one-line UsageError)."""
+    import shutil
+
+    if path.suffix != ".rrd":
+        raise UsageError(f"--save {path}: a recording file must end in .rrd")
+    if path.is_dir():
+        raise UsageError(f"--save {path}: is a folder; give a file name ending in .rrd")
+    parent = path.parent if str(path.parent) else Path(".")
+    try:
+        _mkdirs(parent, created)
+        probe = parent / f".covviz-write-test-{path.stem}"
+        with open(probe, "wb") as fh:
+            fh.write(b"\0" * 65536)
+            fh.flush()
+        probe.unlink()
+        if path.exists():
+            with open(path, "ab"):
+                pass
+    except OSError as exc:
+        raise UsageError(
+            f"cannot write the recording {path}: {exc.strerror or exc}; choose another --save or --no-save"
+        ) from None
+    need = n_frames * max(1, n_trackers) * RECORDING_BYTES_PER_FRAME + RECORDING_MARGIN_BYTES
+    free = shutil.disk_usage(parent).free
+    if free < need:
+        raise UsageError(
+            f"not enough free space for the recording in {parent}: about {need / 1e6:.0f} MB needed, "
+            f"{free / 1e6:.0f} MB free; free some space, choose another --save, or --no-save"
+        )
+
+def _check_viewer(args) -> None:
+    """``--connect``: fail before the work starts if no viewer listens at the URL."""
+    if not getattr(args, "connect", None):
+        return
+    from covviz.viz.sinks import DEFAULT_VIEWER_URL, viewer_reachable
+
+    url = DEFAULT_VIEWER_URL if args.connect is True else str(args.connect)
+    if not viewer_reachable(url):
+        raise UsageError(f"--connect: no viewer listens at {url}; start one with 'rerun', or use --spawn")
+
+def default_recording_path(sequence_name: str, trackers: list[str], seed: int) -> Path:
+    """``recordings/<sequence>-<tracker+tracker>-s<seed>.rrd``."""
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in sequence_name) or "sequence"
+    return Path("recordings") / f"{safe}-{'+'.join(trackers)}-s{seed}.rrd"
+
+def _check_out_dir(out: Path, created: list[Path] | None = None) -> None:
+    try:
+        _mkdirs(out, created)
+        probe = out / ".covviz-write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise UsageError(f"cannot write to {out}: {exc.strerror or exc}; choose another --out") from None
+
+def read_config(path: Path | None, trackers: list[str]):
+    """``--config FILE``: the ManifoldConfig in a JSON file of its fields (None without the option).
+
+    Fields left out keep their defaults; ``--particles`` overrides ``n_particles``.
+    Raises :class:`UsageError` (one line) on a missing or bad file, or when no tracker
+    of ``trackers`` takes a config.
+    """
+    import json
+
+    from covviz.trackers import CONFIGURABLE
+
+    if path is None:
+        return None
+    if not set(trackers) & CONFIGURABLE:
+        raise UsageError(
+            f"--config sets a ManifoldConfig: it needs one of the trackers {', '.join(sorted(CONFIGURABLE))}"
+        )
+    from covviz.trackers.manifold import ManifoldConfig
+
+    try:
+        doc = json.loads(Path(path).read_text())
+    except OSError as exc:
+        raise UsageError(f"--config {path}: {exc.strerror or exc}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UsageError(f"--config {path}: not JSON ({exc}); give a JSON object of ManifoldConfig fields") from None
+    try:
+        return ManifoldConfig.from_dict(doc)
+    except (ValueError, TypeError) as exc:
+        raise UsageError(f"--config {path}: {exc}") from None
+
+def _make_trackers(names: list[str], seed: int, particles: int | None, config_path: Path | None = None) -> list:
+    """The trackers of a run, each with the stream of ``seed`` (:func:`covviz.trackers.tracker_rng`)."""
+    from covviz.trackers import CONFIGURABLE, make_tracker
+
+    config = read_config(config_path, names)
+    try:
+        return [
+            make_tracker(name, seed=seed, n_particles=particles, config=config if name in CONFIGURABLE else None)
+            for name in names
+        ]
+    except ValueError as exc:  # a config value the tracker refuses (e.g. --particles)
+        raise UsageError(str(exc)) from None
+
+def _q(path) -> str:
+    """A path as a shell would need it (quoted if it has spaces)."""
+    return shlex.quote(str(path))
+
+def _check_png_path(out: Path, created: list[Path]) -> None:
+    """``snapshot --out``: a PNG file that can be written (not a folder, not under a file)."""
+    if out.is_dir():
+        raise UsageError(f"--out {out}: is a folder; give a file name ending in .png")
+    if out.suffix.lower() != ".png":
+        raise UsageError(f"--out {out}: a screenshot is a PNG; give a file name ending in .png")
+    parent = out.parent if str(out.parent) else Path(".")
+    try:
+        _mkdirs(parent, created)
+        probe = parent / f".covviz-write-test-{out.stem}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        _remove_empty(created)
+        raise UsageError(f"cannot write {out}: {exc.strerror or exc}; choose another --out") from None
+
+
+# --------------------------------------------------------------------------- #
+# entry point
+# --------------------------------------------------------------------------- #

@@ -1,0 +1,312 @@
+"""``covviz track``: run tracker(s) on a sequence, print metrics, save boxes + JSON and a recording."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+import time
+from pathlib import Path
+
+from covviz.cli.common import (
+    UsageError,
+    _check_out_dir,
+    _check_recording_path,
+    _check_viewer,
+    _make_trackers,
+    _q,
+    _remove_empty,
+    add_config_arg,
+    add_recording_args,
+    default_recording_path,
+    log,
+    nonneg_int,
+    parse_box,
+    positive_int,
+    tracker_list,
+)
+from covviz.data.sequences import open_sequence
+from covviz.errors import InputError
+
+TRACK_EPILOG = """\
+examples:
+  covviz track                                   # the embedded synthetic sequence
+  covviz track synthetic:occlusion               # a failure on purpose at a known frame; also distractor,
+                                                 #   illumination, fast-motion, scale, appearance
+  covviz track path/to/Car4 --seed 1             # an OTB folder (img/0001.jpg... + groundtruth_rect.txt)
+  covviz track clip.mp4 --box 120,80,40,60       # a video (or 'frames/*.png', quoted): give the first box
+  covviz track path/to/Car4 --trackers manifold,ipca   # several trackers side by side on the same frames
+  covviz track path/to/Couple --spawn            # watch it live in a Rerun viewer (and save it)
+  covviz track --mds-every 5 --save my.rrd       # denser template-cloud pictures, another file
+
+Every run writes a Rerun recording (default recordings/SEQUENCE-TRACKERS-sSEED.rrd;
+--no-save to skip); open it with 'rerun FILE.rrd'.
+
+Boxes are x,y,w,h in pixels. --box is 0-based (as an image viewer shows them);
+OTB ground-truth and result files are 1-based, as the OTB toolkit expects.
+"""
+
+def add_track_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "track",
+        help="run a tracker on a sequence, print metrics, write results",
+        description="Run one or more trackers on a sequence, print OTB and on-track metrics and fps, "
+        "and write per-frame boxes (OTB results format) plus a JSON of metrics and config to --out.",
+        epilog=TRACK_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "sequence",
+        nargs="?",
+        default=None,
+        help="OTB folder (img/ + groundtruth_rect.txt), VOT folder, video file or image glob; "
+        "omitted: the embedded synthetic sequence",
+    )
+    p.add_argument("--box", type=parse_box, help="initial box x,y,w,h (0-based px); required for videos and globs")
+    p.add_argument(
+        "--tracker",
+        "--trackers",
+        dest="trackers",
+        type=tracker_list,
+        default=["manifold"],
+        metavar="NAME[,NAME…]",
+        help="tracker(s) to run: manifold (default), manifold-paper (the paper's likelihood: without the quadrant "
+        "term, the derivative normalisation and the colour term), ipca, identity, csrt, kcf, mil, mosse, medianflow, tld",
+    )
+    p.add_argument("--particles", type=positive_int, help="number of particles (default: the tracker's own)")
+    add_config_arg(p)
+    p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0): same seed, same boxes")
+    p.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
+    p.add_argument("--out", type=Path, default=Path("runs"), help="results folder (default: runs/)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_recording_args(p)
+    p.set_defaults(func=cmd_track)
+    return p
+
+def _print_diagnosis(found: dict | None) -> None:
+    """The terminal summary of the drift diagnosis: every loss with its cause, the suspects' count."""
+    if not found:
+        return
+    for d in found.get("diagnoses", []):
+        print(f"  {d['text']}")
+    sus = found.get("suspects", [])
+    if sus:
+        kinds = sorted({sp["kind"] for sp in sus})
+        print(f"  {len(sus)} suspect frame(s) without ground truth ({', '.join(kinds)}); 'covviz events' lists them")
+    labels = found.get("labels", {})
+    off = {k: v for k, v in labels.items() if k != "ok" and v}
+    if off:
+        print("  frames off track: " + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items()))
+
+def _recording_observers(
+    args, seq, n_frames: int, diagnoser, created: list[Path] | None = None
+) -> tuple[list, Path | None]:
+    """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file.
+
+    Without a recording, the drift diagnosis runs on its own background thread.
+    """
+    save = None if args.no_save else (args.save or default_recording_path(seq.name, args.trackers, args.seed))
+    if args.no_save and args.save is not None:
+        raise UsageError("--save and --no-save contradict each other; give one")
+    live = bool(args.spawn or args.connect or args.serve_web)
+    from covviz.runner import BackgroundObserver
+
+    if save is None and not live:
+        return [BackgroundObserver(diagnoser)], None
+    if save is not None:
+        _check_recording_path(save, n_frames, len(args.trackers), created)
+    _check_viewer(args)
+    from covviz.viz.logger import LoggerConfig, RerunLogger
+    from covviz.viz.sinks import BATCH_SECONDS, BATCH_SECONDS_LIVE, attach_sinks, new_recording
+
+    config = LoggerConfig(
+        mds_every=args.mds_every, likelihood_every=args.likelihood_every, seed=args.seed, diagnosis=diagnoser.config
+    )
+    stream = new_recording(batch_seconds=BATCH_SECONDS_LIVE if live else BATCH_SECONDS)
+    attach_sinks(stream, save=save, spawn=args.spawn, connect=args.connect, serve_web=args.serve_web)
+    info = {
+        "name": f"{seq.name} · {'+'.join(args.trackers)} · seed {args.seed}",
+        "command": "covviz " + " ".join(getattr(args, "argv", sys.argv[1:])),
+        "seed": args.seed,
+        "trackers": args.trackers,
+        "max_frames": args.max_frames,
+        "particles": args.particles,
+    }
+    # The recorder logs on its own thread, overlapping the tracker (runner.BackgroundObserver).
+    return [BackgroundObserver(RerunLogger(stream, config, run_info=info, diagnoser=diagnoser))], save
+
+def cmd_track(args) -> int:
+    # One native thread for BLAS and OpenCV while tracking: more only contend with the
+    # tracker's own threads on 9x9 matrices (one BLAS thread halves the CPU time at the same speed).
+    from covviz.threads import limit_threads
+
+    with limit_threads(1):
+        return _track(args)
+
+def _warm_kernels(trackers) -> None:
+    """Compile the manifold tracker's kernels before the run (once per install; then loaded from the cache)."""
+    from covviz.model import kernels
+
+    if kernels.JIT_ENABLED and any(getattr(getattr(t, "config", None), "jit", False) for t in trackers):
+        if kernels.kernels_cached():
+            return  # each kernel loads from numba's cache at its first call (only those the run uses)
+        took = kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
+        log.debug("kernels ready in %.1f s", took)
+
+def _check_frames(seq, n_frames: int) -> None:
+    """Fail before tracking if a numbered frame is missing among the frames to track.
+
+    Frames are matched to ground truth by their number (img/0015.jpg is row 15);
+    tracking across a gap would score every later frame against the wrong row,
+    and the OTB results format has no way to skip a frame.
+    """
+    missing = [i for i in getattr(seq, "missing", ()) if i < n_frames]
+    if missing:
+        first = seq.files[missing[0]]
+        more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
+        raise UsageError(
+            f"{first}: frame missing{more} (frames are matched to the ground truth by number); restore it, "
+            f"or track the {missing[0]} frames before it with --max-frames {missing[0]}"
+        )
+
+def _recorded(args) -> bool:
+    return not args.no_save or bool(args.spawn or args.connect or args.serve_web)
+
+def _check_memory(args, frame_shape) -> None:
+    """Fail before tracking if ``--particles`` needs more memory than the machine has free."""
+    if args.particles is None:
+        return
+    from covviz.resources import available_memory, run_memory
+    from covviz.trackers import STOCHASTIC
+
+    n = sum(name in STOCHASTIC for name in args.trackers)
+    avail = available_memory()
+    if not n or avail is None:
+        return
+    rec = _recorded(args)
+    need = run_memory(args.particles, frame_shape, n, rec)
+    if need > avail:
+        fixed = run_memory(0, frame_shape, n, rec)
+        most = max(0, int((avail - fixed) / ((need - fixed) / args.particles)))
+        raise UsageError(
+            f"--particles {args.particles} needs about {need / 1e9:.1f} GB of memory and {avail / 1e9:.1f} GB is "
+            f"available; use at most about {most} particles" + (" or fewer trackers" if n > 1 else "")
+        )
+
+def _recording_complete(path: Path) -> bool:
+    from covviz.viz.sinks import recording_complete
+
+    return bool(recording_complete(path))
+
+def _track(args) -> int:
+    from covviz.diagnosis.drift import Diagnoser
+    from covviz.model.image import check_init_box
+
+    seq = open_sequence(args.sequence, box=args.box)
+    if len(seq) < 2:
+        raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
+    n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
+    _check_frames(seq, n_frames)
+    first = seq.frame(0)  # fail early on an unreadable first frame or a bad box
+    check_init_box(seq.init_box, first.image.shape)
+    _check_memory(args, first.image.shape)
+    created: list[Path] = []  # folders made by the checks: removed again if nothing is written
+    try:
+        _check_out_dir(args.out, created)
+        trackers = _make_trackers(args.trackers, args.seed, args.particles, getattr(args, "config", None))
+        diagnoser = Diagnoser()
+        # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
+        recorders, rrd = _recording_observers(args, seq, n_frames, diagnoser, created)
+    except BaseException:
+        _remove_empty(created)
+        raise
+    _warm_kernels(trackers)
+    with contextlib.ExitStack() as stack:  # the trackers' threads end with the run
+        for tr in trackers:
+            if hasattr(tr, "close"):
+                stack.callback(tr.close)
+        return _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created)
+
+def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> int:
+    from covviz.experiments.results import ResultWriter
+    from covviz.metrics import nothing_to_score
+    from covviz.runner import FreeSpaceGuard, ResultCollector, run_many
+    from covviz.signals import exit_code
+
+    def extra(j: int) -> dict:
+        """What the drift diagnosis found for tracker ``j`` so far, for its results JSON."""
+        if j >= len(diagnoser.states):
+            return {}
+        return {"diagnosis": diagnoser.report(j), "diagnosis_config": diagnoser.config.as_dict()}
+
+    # The results are on disk while the run goes (every second, and at the end): what a kill, a
+    # signal or a full disk leaves is the frames done. The writer ends after the recorder (whose
+    # thread also runs the drift diagnosis), so the final files hold the whole diagnosis.
+    writer = ResultWriter(args.out, extra=extra)
+    guard = FreeSpaceGuard([args.out, *([rrd] if rrd is not None else [])])
+    collector = ResultCollector()
+    observers = [*getattr(args, "observers", []), guard, *recorders, writer, collector]
+    where = args.out / seq.name
+    t0 = time.perf_counter()
+    code = 0
+    try:
+        results = run_many(
+            trackers,
+            seq,
+            observers,
+            max_frames=args.max_frames,
+            progress=not args.no_progress,
+            seeds=[args.seed] * len(trackers),
+        )
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (covviz.signals): keep what was done
+        code = exit_code(exc)
+        for note in getattr(exc, "__notes__", []):  # an observer that could not finish (covviz.runner)
+            log.warning("%s", note)
+        results = collector.results
+        log.warning("interrupted: the results hold the %d frames done so far", writer.saved_frames)
+        if rrd is not None:
+            print(f"recording (up to the interruption) in {rrd}   open it with: rerun {_q(rrd)}")
+        if not writer.docs:
+            _remove_empty(created)
+            return code
+    except InputError as exc:
+        # A broken frame or a full disk: one line from main (exit 2) that also says what was kept
+        # (the observers' notes - the recording cut short by the same full disk - are in it).
+        kept = [f"the results of the {writer.saved_frames} frames before it in {where}/"] if writer.saved_frames else []
+        if rrd is not None:
+            kept.append(f"the recording {_q(rrd)}" if _recording_complete(rrd) else
+                        f"the recording {_q(rrd)} cut short ('rerun rrd migrate {_q(rrd)}' completes it)")
+        if kept:
+            exc.args = (f"{exc} (kept: {'; '.join(kept)})",)
+        exc.__notes__ = []
+        _remove_empty(created)
+        raise
+    except BaseException:
+        # A bug in a tracker (traceback, exit 1): the results of the frames before it are on disk.
+        if writer.saved_frames:
+            log.warning("results of the %d frames before the error are in %s/", writer.saved_frames, where)
+        _remove_empty(created)
+        raise
+    wall = time.perf_counter() - t0
+    for res, doc in zip(results, writer.docs):
+        m = doc["metrics"]
+        head = f"{res.sequence} · {res.tracker} (seed {res.seed}): {len(res.boxes)} frames, {res.fps:.1f} fps"
+        if nothing_to_score(res.groundtruth):
+            print(f"{head}\n  nothing to score: no ground truth after the first frame, whose box is the one given")
+            continue
+        print(
+            f"{head}\n"
+            f"  success AUC {m['success_auc']:.3f}   P@20 {m['precision_20']:.3f}   "
+            f"r_on_track {m['r_on_track']:.3f}   rms_on_track {m['rms_on_track']:.3f}   "
+            f"mean IoU {m['mean_iou']:.3f}   ({m['n_skipped']} frames without ground truth skipped)"
+        )
+        _print_diagnosis(doc.get("diagnosis"))
+    print(f"results in {where}/  ({wall:.1f} s wall)")
+    if rrd is not None and not code:
+        print(f"recording in {rrd}   open it with: rerun {_q(rrd)}")
+    return code
+
+
+# --------------------------------------------------------------------------- #
+# bench and report
+# --------------------------------------------------------------------------- #
