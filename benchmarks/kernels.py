@@ -160,7 +160,7 @@ def print_updates(seq, n: int, frames: int, repeat: int, observe_threads: int) -
     kernels.warmup()
     variants = {}
     for quad, label in ((True, "manifold"), (False, "manifold-paper")):
-        cfg = ManifoldConfig(n_particles=n, threads=observe_threads, quadrants=quad)
+        cfg = ManifoldConfig().replace(n_particles=n, threads=observe_threads, quadrants=quad)
         for jit in (False, True):
             variants[(label, jit)] = (lambda cfg=cfg: ManifoldTracker(cfg, rng=0), jit)
     best = {k: (np.inf, np.inf, {}) for k in [*variants, "csrt"]}  # best wall pass, best CPU pass

@@ -47,7 +47,7 @@ import psutil
 
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.diagnosis.drift import Diagnoser
-from covviz.runner import BackgroundObserver, run
+from covviz.runner import BackgroundObserver, Observer, Pipeline, run
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz.logger import LoggerConfig, RerunLogger
 from covviz.viz.sinks import attach_sinks, new_recording
@@ -56,7 +56,7 @@ TARGET_RATIO = 1.5
 TARGET_MB_PER_1000 = 30.0
 
 
-class RSSSampler:
+class RSSSampler(Observer):
     """Observer sampling the process's resident set size every ``every`` frames."""
 
     def __init__(self, every: int = 50):
@@ -64,7 +64,7 @@ class RSSSampler:
         self.proc = psutil.Process()
         self.samples: list[tuple[int, float]] = []
 
-    def on_frame(self, frame, records):
+    def on_frame(self, frame, records, found):
         if frame.index % self.every == 0:
             self.samples.append((int(frame.index), self.proc.memory_info().rss / 1e6))
 
@@ -91,23 +91,24 @@ class TimedTracker:
         return box
 
 
-class TimedObserver:
+class TimedObserver(Observer):
     """Wraps an observer and measures the main-thread CPU time of its ``on_frame``."""
 
     def __init__(self, inner):
         self.inner = inner
         self.cpu = 0.0
 
-    def on_start(self, sequence, trackers):
-        self.inner.on_start(sequence, trackers)
+    def on_start(self, start, found):
+        return self.inner.on_start(start, found)
 
-    def on_frame(self, frame, records):
+    def on_frame(self, frame, records, found):
         t = time.thread_time()
-        self.inner.on_frame(frame, records)
+        out = self.inner.on_frame(frame, records, found)
         self.cpu += time.thread_time() - t
+        return out
 
-    def on_end(self, results):
-        self.inner.on_end(results)
+    def on_end(self, results, found):
+        return self.inner.on_end(results, found)
 
 
 def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds_every: int, extra=(),
@@ -120,7 +121,9 @@ def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds
     if rrd is not None:
         stream = new_recording()
         attach_sinks(stream, save=rrd)
-        logger = TimedObserver(RerunLogger(stream, LoggerConfig(mds_every=mds_every, seed=seed)))
+        rerun_logger = RerunLogger(stream, LoggerConfig(mds_every=mds_every, seed=seed))
+        # As `covviz track` does: the diagnosis, then the recorder that shows what it found.
+        logger = TimedObserver(Pipeline([Diagnoser(), rerun_logger]))
         # As `covviz track` does: the recorder logs on its own thread (BackgroundObserver).
         observers.append(BackgroundObserver(logger) if background else logger)
     w0, c0, m0 = time.perf_counter(), time.process_time(), time.thread_time()
@@ -132,7 +135,7 @@ def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds
         "cpu_ms": cpu * per,
         "tracker_cpu_ms": tracker.cpu * per,
         "logger_cpu_ms": (logger.cpu * per) if logger else 0.0,
-        "logger_wall_ms": (logger.inner.log_seconds * per) if logger else 0.0,
+        "logger_wall_ms": (rerun_logger.log_seconds * per) if logger else 0.0,
         "other_threads_cpu_ms": (cpu - main) * per,
         "mb_per_1000": (rrd.stat().st_size / n_frames * 1000 / 1e6) if rrd is not None else None,
         "boxes": res.boxes,

@@ -155,7 +155,7 @@ def main(argv=None) -> int:
         for quad in variants:
             for terms in term_variants:
                 for jit in jits:
-                    cfg = ManifoldConfig(n_particles=k, threads=args.observe_threads, jit=jit,
+                    cfg = ManifoldConfig().replace(n_particles=k, threads=args.observe_threads, jit=jit,
                                          **{**({} if terms else NEW_TERMS_OFF), "quadrants": quad})
                     dt, st = time_tracker(lambda cfg=cfg: ManifoldTracker(cfg, rng=0), frames, box, args.repeat)
                     _row(k, quad, terms, jit, dt, st, stage_names, peers)

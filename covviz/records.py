@@ -26,12 +26,17 @@ Conventions
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-__all__ = ["STAGES", "FrameRecord", "RunResult", "frame_number"]
+if TYPE_CHECKING:  # the types of the online state; records import nothing of the model at run time
+    from covviz.model.fgbg import ColourMap, ColourModel
+    from covviz.model.observation import QuadrantState
+
+__all__ = ["STAGES", "FrameInputs", "FrameRecord", "Likelihood", "PoseSearch", "RunResult", "frame_number"]
 
 def frame_number(index: int) -> int:
     """The 1-based frame number users see for a 0-based frame index."""
@@ -40,6 +45,92 @@ def frame_number(index: int) -> int:
 
 #: Names of the timed stages of a manifold-tracker update, in execution order.
 STAGES = ("propagate", "colour", "warp", "features", "covariance", "distances", "weights", "estimate", "resample")
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Likelihood:
+    """What every weighed particle's likelihood was made of on one frame.
+
+    Attributes
+    ----------
+    distances : ndarray, shape (n,)
+        ``d_eff``, the distance each particle was weighed by:
+        ``log w ∝ −d_eff² / 2σ²`` and ``d_eff² = d² + Σ_k term_weights[k]·terms[k]``
+        with ``d`` the template distance (``FrameRecord.distances``).
+    sigma : float
+        σ of the likelihood.
+    quadrant_distances : ndarray, shape (n, 4), optional
+        ``sqrt(8·J)`` of each quadrant against its reference (None without the quadrant term).
+    terms : mapping of str to ndarray, shape (n,)
+        Each extra term of ``d_eff²`` per particle, unweighted (``"quadrants"``,
+        ``"colour"``, ``"context"``: those the model has; empty for the paper's likelihood).
+    term_weights : mapping of str to float
+        The weight of each term.
+    """
+
+    distances: np.ndarray
+    sigma: float
+    quadrant_distances: np.ndarray | None = None
+    terms: Mapping[str, np.ndarray] = field(default_factory=dict)
+    term_weights: Mapping[str, float] = field(default_factory=dict)
+
+    def contributions(self) -> dict[str, np.ndarray]:
+        """``weight_k · term_k`` per particle, ``(n,)`` each, by term name."""
+        return {k: self.term_weights[k] * np.asarray(v, dtype=np.float64) for k, v in self.terms.items()}
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FrameInputs:
+    """What ``update()`` weighed by besides the particles' poses and templates.
+
+    With these, :class:`~covviz.model.observation.ObservationModel`'s
+    ``template_scores``, ``likelihood_distances`` and ``pose_search`` say exactly
+    what the tracker's likelihood said, every term included, without the tracker.
+
+    Attributes
+    ----------
+    gray : ndarray, shape (h, w), float32
+        The frame as the model samples it (``ObservationModel.prepare``:
+        grey in ``[0, 1]``, downsampled and smoothed as configured).
+    colour_map : ColourMap, optional
+        The foreground probability of this frame the colour term used (None without it).
+    colour_state : ColourModel, optional
+        The colour histograms it was computed from (before this frame's update).
+    quadrant_state : QuadrantState, optional
+        The quadrant references and reliabilities (None: the initial references, fixed).
+    """
+
+    gray: np.ndarray
+    colour_map: ColourMap | None = None
+    colour_state: ColourModel | None = None
+    quadrant_state: QuadrantState | None = None
+
+    def likelihood_kwargs(self) -> dict:
+        """Keyword arguments (``colour``, ``quadrant_state``) of the model's scoring methods."""
+        out: dict = {}
+        if self.colour_map is not None:
+            out["colour"] = self.colour_map
+        if self.quadrant_state is not None:
+            out["quadrant_state"] = self.quadrant_state
+        return out
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class PoseSearch:
+    """The scale and rotation candidates scored at the estimate (``ManifoldConfig.scale_steps``).
+
+    Attributes
+    ----------
+    scale_poses : ndarray, shape (k, 4)
+    scale_distances : ndarray, shape (k,)
+    rotation_poses : ndarray, shape (m, 4)
+    rotation_distances : ndarray, shape (m,)
+    """
+
+    scale_poses: np.ndarray
+    scale_distances: np.ndarray
+    rotation_poses: np.ndarray
+    rotation_distances: np.ndarray
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -84,18 +175,20 @@ class FrameRecord:
         Descriptor observed at the estimated pose.
     timings : dict[str, float]
         Seconds spent in each stage (see :data:`STAGES`) plus ``"total"``.
+    modes : ndarray, shape (n,), optional
+        The noise mode each weighed particle drew (0: everyday, 1: the wide jump;
+        2: a second-stage particle).
+    velocity : ndarray, shape (2,), optional
+        The estimate's velocity, pixels per frame.
+    likelihood : Likelihood, optional
+        What each particle was weighed by: ``d_eff`` and its terms.
+    inputs : FrameInputs, optional
+        What the likelihood depended on besides poses and templates.
+    pose_search : PoseSearch, optional
+        The scale/rotation search at the estimate, when the config asks for one.
     extras : dict[str, Any]
-        Tracker-specific arrays (for example the IPCA mean and basis, or an
-        OpenCV tracker's failure flag). The manifold tracker puts the
-        likelihood's factors here: ``terms`` (name → per-particle values) and
-        ``term_weights`` (name → weight), with ``likelihood_distances² =
-        distances² + Σ weight·term``, and the online state they used (see
-        :class:`covviz.trackers.manifold.ManifoldTracker`).
-    model : object, optional
-        On the init record (index 0) of a covariance tracker: its frozen
-        :class:`~covviz.model.observation.ObservationModel`, which observers use to
-        compute what the tracker would observe at other poses (likelihood
-        maps, the drift diagnosis) without calling the tracker.
+        Only what a baseline adds of its own (IPCA's mean and basis, an OpenCV
+        tracker's failure flag); empty for the manifold trackers.
     """
 
     index: int
@@ -115,8 +208,12 @@ class FrameRecord:
     estimate_template: np.ndarray | None = None
     estimate_descriptor: np.ndarray | None = None
     timings: dict[str, float] = field(default_factory=dict)
+    modes: np.ndarray | None = None
+    velocity: np.ndarray | None = None
+    likelihood: Likelihood | None = None
+    inputs: FrameInputs | None = None
+    pose_search: PoseSearch | None = None
     extras: dict[str, Any] = field(default_factory=dict)
-    model: Any = None
 
     @property
     def n_particles(self) -> int:

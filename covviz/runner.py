@@ -1,11 +1,16 @@
-"""The tracking loop: frames in, boxes and records out, observers informed.
+"""The tracking loop: frames in, boxes and records out, observers informed in a stated order.
 
 ``run(tracker, sequence, observers)`` initialises the tracker on the first
 frame, calls ``update`` on every later frame, times each call, and hands the
-tracker's :class:`~covviz.records.FrameRecord` with the :class:`Frame` to every
-observer. Observers are plain objects with any of the methods
-``on_start(sequence, tracker)``, ``on_frame(frame, record)`` and
-``on_end(result)``; the core never imports them.
+tracker's :class:`~covviz.records.FrameRecord` with the :class:`Frame` to the
+observers. Observers follow the :class:`Observer` protocol (``on_start``,
+``on_frame``, ``on_end``) and form a pipeline, in the order they are given:
+each is handed the :class:`Findings` of those before it (the drift diagnosis's
+evidence, events and diagnoses, for the recorder and the results writer after
+it) and may return new findings for those after it. The core never imports them,
+and no observer reaches into another's state or asks the tracker anything:
+what they know of each tracker (name, config, frozen observation model) comes
+once, in :class:`RunStart`, after the trackers' ``init`` on the first frame.
 
 A Ctrl-C or an exception inside the tracker stops the loop; observers still get
 ``on_end`` with the frames done so far (``result.interrupted`` is True), so a
@@ -15,9 +20,10 @@ and a stop signal that arrives meanwhile waits until they are done
 (:func:`covviz.signals.shielded`).
 
 An observer that keeps files up to date while the run goes (the results
-writer, :class:`covviz.experiments.results.ResultWriter`) also has ``on_progress(results)``
-and a ``progress_seconds`` period: the runner calls it with the results of the
-frames done so far (``interrupted`` True) at most that often.
+writer, :class:`covviz.experiments.results.ResultWriter`) is a
+:class:`ProgressObserver`: the runner also calls its ``on_progress(results,
+found)`` with the results of the frames done so far (``interrupted`` True) at
+most every ``progress_seconds``.
 """
 
 from __future__ import annotations
@@ -28,8 +34,11 @@ import shutil
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Iterable
 from collections.abc import Sequence as Seq
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -37,23 +46,156 @@ from covviz.data.frames import Frame, Sequence
 from covviz.errors import WriteError
 from covviz.records import FrameRecord, RunResult
 from covviz.signals import shielded
+from covviz.trackers.base import TrackerInfo, tracker_info
 
 log = logging.getLogger("covviz")
 
-__all__ = ["BackgroundObserver", "FreeSpaceGuard", "Observer", "ResultCollector", "run", "run_many"]
+__all__ = [
+    "NOTHING",
+    "BackgroundObserver",
+    "CheckpointRing",
+    "Findings",
+    "FreeSpaceGuard",
+    "Observer",
+    "Pipeline",
+    "ProgressObserver",
+    "ResultCollector",
+    "RunStart",
+    "run",
+    "run_many",
+]
 
 
-class Observer:
-    """Base class for observers (all methods optional)."""
+class CheckpointRing:
+    """One tracker's state every ``every`` frames, the last ``keep`` of them: a bounded memory of its past.
 
-    def on_start(self, sequence: Sequence, trackers: Seq) -> None:  # pragma: no cover - interface
-        pass
+    The counterfactual replays fork a tracker from the newest checkpoint before the frame they
+    start at. A manifold state at ``n`` particles takes about ``n · 87 · 8`` bytes (kinematics and
+    templates), so the default ring (64 states) holds ~27 MB at 600 particles and reaches back
+    ``every · keep`` = 320 frames.
+    """
 
-    def on_frame(self, frame: Frame, records: Seq[FrameRecord]) -> None:  # pragma: no cover
-        pass
+    def __init__(self, every: int = 5, keep: int = 64) -> None:
+        if every < 1 or keep < 1:
+            raise ValueError("a checkpoint ring needs every >= 1 and keep >= 1")
+        self.every = int(every)
+        self._ring: deque = deque(maxlen=int(keep))
 
-    def on_end(self, results: Seq[RunResult]) -> None:  # pragma: no cover
-        pass
+    def __len__(self) -> int:
+        return len(self._ring)
+
+    def add(self, index: int, state) -> None:
+        """The state after frame ``index`` (0-based) was tracked."""
+        self._ring.append((int(index), state))
+
+    def at_or_before(self, index: int):
+        """``(i, state)`` of the newest checkpoint with ``i <= index``, or None."""
+        best = None
+        for i, state in self._ring:
+            if i <= index:
+                best = (i, state)
+        return best
+
+
+@dataclass(frozen=True, slots=True)
+class RunStart:
+    """What observers are told once, when the run starts (after every tracker's ``init`` on frame 1).
+
+    Attributes
+    ----------
+    sequence : Sequence
+    trackers : tuple of TrackerInfo
+        Name, config and frozen observation model of each tracker, in order.
+    init_box : ndarray, shape (4,)
+        The box every tracker was started at (0-based pixels).
+    seeds : tuple of int or None
+    n_frames : int
+        Frames the run will track (``--max-frames`` applied).
+    checkpoints : tuple of CheckpointRing or None
+        Per tracker, the states the runner keeps while it goes (None: the tracker cannot be
+        snapshotted, or checkpoints are off). Read them after the run: they change while it goes.
+    """
+
+    sequence: Sequence
+    trackers: tuple[TrackerInfo, ...]
+    init_box: np.ndarray
+    seeds: tuple
+    n_frames: int
+    checkpoints: tuple = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Findings:
+    """What the observers earlier in the pipeline found, handed to those after them.
+
+    Attributes
+    ----------
+    diagnosis : DiagnosisView, optional
+        The drift diagnosis so far (:class:`covviz.diagnosis.drift.DiagnosisView`:
+        ``report(j)``, ``config``), from ``on_start`` on.
+    news : tuple, optional
+        What the diagnosis found on this frame, one
+        :class:`covviz.diagnosis.drift.FrameNews` per tracker (``on_frame`` only).
+    counterfactual : tuple, optional
+        Per tracker, ``{lost_at: Replay}``: the replays of its losses
+        (:class:`covviz.diagnosis.counterfactual.Counterfactuals`, ``on_end`` only).
+    """
+
+    diagnosis: Any = None
+    news: tuple = ()
+    counterfactual: tuple = ()
+
+
+NOTHING = Findings()
+
+
+@runtime_checkable
+class Observer(Protocol):
+    """What the runner calls; subclass it for the no-op defaults.
+
+    Each method is handed the findings of the observers before it in the
+    pipeline and returns new findings for those after it (``None``: unchanged).
+    """
+
+    def on_start(self, start: RunStart, found: Findings) -> Findings | None:
+        return None
+
+    def on_frame(self, frame: Frame, records: Seq[FrameRecord], found: Findings) -> Findings | None:
+        return None
+
+    def on_end(self, results: Seq[RunResult], found: Findings) -> Findings | None:
+        return None
+
+
+class ProgressObserver(Observer):
+    """An observer that also wants the results so far, at most every ``progress_seconds``."""
+
+    progress_seconds: float = 1.0
+
+    def on_progress(self, results: Seq[RunResult], found: Findings) -> None:
+        return None
+
+
+class Pipeline(Observer):
+    """Observers run in order, each handed the findings of those before it (one observer to the runner)."""
+
+    def __init__(self, observers: Iterable) -> None:
+        self.observers = list(observers)
+
+    def on_start(self, start, found):
+        for ob in self.observers:
+            found = ob.on_start(start, found) or found
+        return found
+
+    def on_frame(self, frame, records, found):
+        for ob in self.observers:
+            found = ob.on_frame(frame, records, found) or found
+        return found
+
+    def on_end(self, results, found):
+        for ob in self.observers:
+            found = ob.on_end(results, found) or found
+        return found
 
 
 class ResultCollector(Observer):
@@ -62,7 +204,7 @@ class ResultCollector(Observer):
     def __init__(self) -> None:
         self.results: list[RunResult] = []
 
-    def on_end(self, results: Seq[RunResult]) -> None:
+    def on_end(self, results, found) -> None:
         self.results = list(results)
 
 
@@ -78,8 +220,10 @@ class BackgroundObserver(Observer):
 
     Parameters
     ----------
-    observer : object
-        Any observer (``on_start``/``on_frame``/``on_end``, all optional).
+    observer : Observer
+        Any observer (often a :class:`Pipeline`: the diagnosis and the recorder after it). Its
+        ``on_start`` and ``on_end`` run in the calling thread, so the findings they return reach
+        the observers after this one; those of its ``on_frame`` stay inside it.
     maxsize : int
         Frames that may wait in the queue (bounds memory; the tracker blocks
         when the observer is that far behind).
@@ -111,19 +255,18 @@ class BackgroundObserver(Observer):
             err, self._error = self._error, None
             raise err
 
-    def on_start(self, sequence, trackers) -> None:
-        if hasattr(self.observer, "on_start"):
-            self.observer.on_start(sequence, trackers)
-        if hasattr(self.observer, "on_frame"):
-            self._thread = threading.Thread(target=self._work, name="covviz-observer", daemon=True)
-            self._thread.start()
+    def on_start(self, start, found):
+        found = self.observer.on_start(start, found) or found
+        self._thread = threading.Thread(target=self._work, name="covviz-observer", daemon=True)
+        self._thread.start()
+        return found
 
-    def on_frame(self, frame, records) -> None:
+    def on_frame(self, frame, records, found) -> None:
         self._raise()
         if self._thread is not None:
-            self._queue.put((frame, records))
+            self._queue.put((frame, records, found))
 
-    def on_end(self, results) -> None:
+    def on_end(self, results, found):
         if self._thread is not None:
             self._queue.put(self._STOP)
             self._thread.join()
@@ -131,11 +274,11 @@ class BackgroundObserver(Observer):
         try:
             self._raise()
         finally:
-            if hasattr(self.observer, "on_end"):
-                self.observer.on_end(results)
+            found = self.observer.on_end(results, found) or found
+        return found
 
 
-class FreeSpaceGuard(Observer):
+class FreeSpaceGuard(ProgressObserver):
     """Stops a run while the disk under its files still has room to finish them.
 
     A recording needs room at the end for its footer (a manifest of every chunk,
@@ -164,7 +307,7 @@ class FreeSpaceGuard(Observer):
         self.footer_share = float(footer_share)
         self.progress_seconds = float(progress_seconds)
 
-    def on_progress(self, results) -> None:
+    def on_progress(self, results, found) -> None:
         for p in self.paths:
             folder = p if p.is_dir() else p.parent
             try:
@@ -192,10 +335,11 @@ def _progress(total: int, desc: str, enabled: bool):
 def run_many(
     trackers: Seq,
     sequence: Sequence,
-    observers: Iterable = (),
+    observers: Iterable[Observer] = (),
     max_frames: int | None = None,
     progress: bool = False,
     seeds: Seq[int | None] | None = None,
+    checkpoints: tuple[int, int] | None = None,
 ) -> list[RunResult]:
     """Run several trackers side by side on the same frames (each frame read once).
 
@@ -203,23 +347,28 @@ def run_many(
     ----------
     trackers : sequence of Tracker
     sequence : Sequence
-    observers : iterable
-        Objects with optional ``on_start(sequence, trackers)``,
-        ``on_frame(frame, records)`` (one record per tracker, in order),
-        ``on_progress(results)`` (with a ``progress_seconds`` period: the
-        results so far, marked interrupted) and ``on_end(results)``.
+    observers : iterable of Observer
+        The pipeline, in order: each is handed the :class:`Findings` of those
+        before it. :class:`ProgressObserver` s also get ``on_progress`` (the
+        results so far, marked interrupted) every ``progress_seconds``.
     max_frames : int, optional
         Stop after this many frames (including the first).
     progress : bool
         Show a progress bar on stderr.
     seeds : sequence of int, optional
         Seeds to write into the results (one per tracker).
+    checkpoints : (every, keep), optional
+        Keep each snapshot-capable tracker's state every ``every`` frames, the last ``keep``
+        (:class:`CheckpointRing`, in :attr:`RunStart.checkpoints`); None: none kept.
 
     Returns
     -------
     list of RunResult, one per tracker.
     """
     observers = list(observers)
+    for ob in observers:
+        if not isinstance(ob, Observer):
+            raise TypeError(f"{type(ob).__name__} is not an Observer (on_start, on_frame, on_end)")
     n = len(sequence) if max_frames is None else min(len(sequence), int(max_frames))
     if n < 1:
         raise ValueError("nothing to track: the sequence has no frames (or --max-frames is 0)")
@@ -231,35 +380,31 @@ def run_many(
     done = 0
     interrupted = False
     stopped_by: BaseException | None = None
+    infos: list[TrackerInfo] = []
+    rings: list[CheckpointRing | None] = []
 
     def results_so_far(stopped: bool) -> list[RunResult]:
         return [
             RunResult(
                 sequence=sequence.name,
-                tracker=tr.name,
+                tracker=info.name,
                 seed=seeds[j],
                 boxes=boxes[j, :done],
                 times=times[j, :done],
                 groundtruth=gt[:done],
-                config=tr.config_dict() if hasattr(tr, "config_dict") else {},
+                config=info.config,
                 interrupted=stopped,
             )
-            for j, tr in enumerate(trackers)
+            for j, info in enumerate(infos)
         ]
 
     # Observers that want the results so far, each with its own period (a monotonic deadline).
     periodic = [[ob, time.monotonic() + float(ob.progress_seconds)] for ob in observers
-                if hasattr(ob, "on_progress")]
+                if isinstance(ob, ProgressObserver)]
     bar = None
-    started = []
+    started: list[Observer] = []
+    found = NOTHING
     try:
-        # A stop signal while the observers start (the recorder opening its file) waits until
-        # they all have, so that each of them also gets its on_end.
-        with shielded():
-            for ob in observers:
-                if hasattr(ob, "on_start"):
-                    ob.on_start(sequence, trackers)
-                started.append(ob)
         bar = _progress(n, f"{sequence.name}", progress)
         for i in range(n):
             frame = sequence.frame(i)
@@ -280,16 +425,31 @@ def run_many(
                     rec = FrameRecord(index=i, box=box, tracker=tr.name)
                 records.append(rec)
             done = i + 1
+            if i == 0:
+                infos = [tracker_info(tr) for tr in trackers]
+                rings = [CheckpointRing(*checkpoints) if (checkpoints and info.snapshots) else None
+                         for info in infos]
+                start = RunStart(sequence, tuple(infos), np.asarray(sequence.init_box, dtype=np.float64).copy(),
+                                 tuple(seeds), n, tuple(rings))
+                # A stop signal while the observers start (the recorder opening its file) waits until
+                # they all have, so that each of them also gets its on_end.
+                with shielded():
+                    for ob in observers:
+                        found = ob.on_start(start, found) or found
+                        started.append(ob)
+            for ring, tr in zip(rings, trackers):
+                if ring is not None and i % ring.every == 0:
+                    ring.add(i, tr.snapshot())
+            frame_found = found
             for ob in observers:
-                if hasattr(ob, "on_frame"):
-                    ob.on_frame(frame, records)
+                frame_found = ob.on_frame(frame, records, frame_found) or frame_found
             if periodic:
                 now = time.monotonic()
                 partial = None
                 for due in periodic:
                     if now >= due[1]:
                         partial = partial or results_so_far(stopped=True)
-                        due[0].on_progress(partial)
+                        due[0].on_progress(partial, found)
                         due[1] = time.monotonic() + float(due[0].progress_seconds)
             if bar is not None:
                 bar.update(1)
@@ -304,13 +464,15 @@ def run_many(
     finally:
         if bar is not None:
             bar.close()
+        if not infos:  # stopped before the first frame was tracked
+            infos = [tracker_info(tr) for tr in trackers]
         results = results_so_far(interrupted)
-        _end(started, results, failing=stopped_by if interrupted else None)
+        _end(started, results, found, failing=stopped_by if interrupted else None)
     return results
 
 
-def _end(observers, results, failing: BaseException | None) -> None:
-    """Every observer's ``on_end``, even when one fails; a stop signal waits until they are done.
+def _end(observers, results, found: Findings, failing: BaseException | None) -> None:
+    """Every observer's ``on_end`` in order, even when one fails; a stop signal waits until they are done.
 
     The first failure is raised afterwards, unless the run is already failing (``failing``, the
     exception that stopped it): then that exception goes on, with the observers' failures added
@@ -319,11 +481,10 @@ def _end(observers, results, failing: BaseException | None) -> None:
     errors: list[BaseException] = []
     with shielded():
         for ob in observers:
-            if hasattr(ob, "on_end"):
-                try:
-                    ob.on_end(results)
-                except BaseException as exc:  # noqa: BLE001 - the others still get theirs
-                    errors.append(exc)
+            try:
+                found = ob.on_end(results, found) or found
+            except BaseException as exc:  # noqa: BLE001 - the others still get theirs
+                errors.append(exc)
     if not errors:
         return
     if failing is not None:
@@ -333,6 +494,7 @@ def _end(observers, results, failing: BaseException | None) -> None:
     raise errors[0]
 
 
-def run(tracker, sequence: Sequence, observers: Iterable = (), max_frames=None, progress=False, seed=None):
+def run(tracker, sequence: Sequence, observers: Iterable = (), max_frames=None, progress=False, seed=None,
+        checkpoints: tuple[int, int] | None = None):
     """Run one tracker over a sequence; see :func:`run_many`. Returns a :class:`RunResult`."""
-    return run_many([tracker], sequence, observers, max_frames, progress, seeds=[seed])[0]
+    return run_many([tracker], sequence, observers, max_frames, progress, seeds=[seed], checkpoints=checkpoints)[0]

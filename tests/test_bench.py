@@ -370,7 +370,7 @@ def test_results_of_covviz_track_without_manifest(root, tmp_path, capsys, monkey
 def test_result_with_another_config(results, root, capsys):
     js = result_paths(results, "beta", "manifold", 0)[1]
     doc = json.loads(js.read_text())
-    doc["config"]["likelihood_sigma"] = 123.0
+    doc["config"]["observation"]["likelihood_sigma"] = 123.0
     js.write_text(json.dumps(doc))
     assert (
         bench_cli(
@@ -431,13 +431,14 @@ def test_stat_mean_std_over_seeds():
 def test_failure_counter_reads_record_extras():
     from covviz.data.sequences import Frame
     from covviz.records import FrameRecord
+    from covviz.runner import NOTHING
 
     fc = jobs_mod._FailureCounter()
     for i, failed in enumerate([False, True, False, True]):
         fc.on_frame(
-            Frame(i, np.zeros((2, 2, 3), np.uint8)), [FrameRecord(i, np.zeros(4), extras={"failed": failed})]
+            Frame(i, np.zeros((2, 2, 3), np.uint8)), [FrameRecord(i, np.zeros(4), extras={"failed": failed})], NOTHING
         )
-    fc.on_frame(Frame(4, np.zeros((2, 2, 3), np.uint8)), [FrameRecord(4, np.zeros(4))])
+    fc.on_frame(Frame(4, np.zeros((2, 2, 3), np.uint8)), [FrameRecord(4, np.zeros(4))], NOTHING)
     assert fc.failed == [2, 4]  # frame numbers (1-based) of the indices 1 and 3
 
 

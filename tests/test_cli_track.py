@@ -313,4 +313,4 @@ def test_value_error_exit_code_through_the_console(tmp_path):
         capture_output=True, text=True, timeout=120, check=False,
     )
     assert p.returncode == 2, p.stderr
-    assert p.stderr.strip().count("\n") == 0 and "n_particles must be at least 2" in p.stderr
+    assert p.stderr.strip().count("\n") == 0 and "n_particles must be an integer in [2" in p.stderr

@@ -41,7 +41,7 @@ def test_track_runs_the_config_of_the_file(root, tmp_path, monkeypatch, tracker)
     assert main(argv) == 0
     doc, _ = load_result(result_paths(tmp_path / "runs", "alpha", tracker, 0)[1])
     paper = {} if tracker == "manifold" else PAPER_LIKELIHOOD
-    expect = ManifoldConfig(likelihood_sigma=0.7, n_particles=30, **paper)
+    expect = ManifoldConfig().replace(likelihood_sigma=0.7, n_particles=30, **paper)
     expect = ManifoldConfig.from_dict({**expect.as_dict(), "kinematics": {"velocity_decay": 0.8}})
     assert doc["config"] == expect.as_dict()
     # --particles overrides the file's n_particles
@@ -55,8 +55,20 @@ def test_track_runs_the_config_of_the_file(root, tmp_path, monkeypatch, tracker)
         (None, "No such file"),
         ("{not json", "not JSON"),
         ('{"sigma": 1}', "unknown ManifoldConfig field(s) sigma"),
-        ('{"likelihood_sigma": -1}', "likelihood_sigma must be positive"),
+        ('{"likelihood_sigma": -1}', "likelihood_sigma must be a number > 0"),
         ("[1, 2]", "must be a JSON object"),
+        # a wrong type is never taken as true, nor written into results as if it ran
+        ('{"quadrants": "false"}', "ObservationConfig.quadrants must be true or false, got 'false'"),
+        ('{"jit": 0}', "ObservationConfig.jit must be true or false"),
+        ('{"gain_normalize": "yes"}', "ObservationConfig.gain_normalize must be true or false"),
+        ('{"antialias": null}', "ObservationConfig.antialias must be true or false"),
+        ('{"kinematics": 5}', "ManifoldConfig.kinematics must be a JSON object of KinematicModel fields, got 5"),
+        ('{"kinematics": {"pos_sigma": [0.1]}}', "KinematicModel.pos_sigma must be two numbers"),
+        ('{"kinematics": {"speed": 1}}', "unknown KinematicModel field(s) speed"),
+        ('{"n_particles": 12.5}', "ManifoldConfig.n_particles must be an integer"),
+        ('{"patch_size": 2000}', "ObservationConfig.patch_size must be an integer in [4, 256]"),
+        ('{"observation": {"colour_weight": -1}}', "ObservationConfig.colour_weight must be a number >= 0"),
+        ('{"quadrants": false, "observation": {"quadrants": true}}', "given both flat and inside"),
     ],
 )
 def test_bad_config_files_are_one_line_errors(root, tmp_path, capsys, content, message):
@@ -69,6 +81,7 @@ def test_bad_config_files_are_one_line_errors(root, tmp_path, capsys, content, m
         assert main(argv) == 2
         msg = one_line_error(capsys)
         assert "--config" in msg and message in msg, msg
+        assert not (tmp_path / "o").exists()  # refused before anything ran: nothing written
 
 
 def test_config_needs_a_manifold_tracker(root, tmp_path, capsys):
@@ -82,9 +95,9 @@ def test_bench_config_goes_into_results_and_guards_resume(root, tmp_path, capsys
     s = bench(root, ["manifold", "identity"], out, seeds=1, particles=20, progress=False, report=False,
               config={"likelihood_sigma": 0.7})
     assert s["run"] == 2
-    assert load_result(result_paths(out, "alpha", "manifold", 0)[1])[0]["config"]["likelihood_sigma"] == 0.7
+    assert load_result(result_paths(out, "alpha", "manifold", 0)[1])[0]["config"]["observation"]["likelihood_sigma"] == 0.7
     manifest = json.loads((out / "bench_manifest.json").read_text())
-    assert manifest["configs"]["manifold"]["likelihood_sigma"] == 0.7
+    assert manifest["configs"]["manifold"]["observation"]["likelihood_sigma"] == 0.7
     # the same config resumes; another one is refused (the results were made with the first)
     cfg = write_config(tmp_path / "c.json", likelihood_sigma=0.7)
     argv = ["bench", str(root), "--out", str(out), "--trackers", "manifold,identity", "--seeds", "1",

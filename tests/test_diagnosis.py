@@ -22,8 +22,8 @@ from covviz.diagnosis.drift import (
     score_suspects,
 )
 from covviz.model import spd
-from covviz.runner import run_many
-from covviz.trackers.base import IdentityTracker
+from covviz.runner import NOTHING, RunStart, run_many
+from covviz.trackers.base import IdentityTracker, tracker_info
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 
 CFG = DiagnosisConfig()
@@ -190,7 +190,7 @@ def test_diagnoser_scores_the_truth_through_the_trackers_own_model():
 
     # Every term update() weighed by: the default likelihood has the colour term, whose map
     # comes from the frame and the colour state the record carries.
-    inputs = m.frame_inputs(seq.frame(4).image, rec.extras)
+    inputs = rec.inputs.likelihood_kwargs()
     assert "colour" in inputs and m.term_weights["colour"] > 0
     truth = np.repeat(box_to_pose(seq.frame(4).gt, m.base_wh)[None], 40, 0)
     at_truth = m.likelihood_distances(g, truth, rec.templates, **inputs)
@@ -209,7 +209,7 @@ def test_diagnoser_scores_the_truth_through_the_trackers_own_model():
 def test_suspects_without_ground_truth(rng):
     dg = Diagnoser()
     seq = SyntheticSequence(SyntheticConfig(n_frames=3))
-    dg.on_start(seq, [IdentityTracker()])
+    dg.on_start(RunStart(seq, (tracker_info(IdentityTracker()),), seq.init_box, (None,), 3), NOTHING)
     s = dg.states[0]
     raised = []
     for f in range(1, 40):

@@ -436,8 +436,8 @@ def test_tracker_observes_the_same_with_and_without_jit(monkeypatch, quadrants):
     seq = SyntheticSequence()
     out = {}
     for jit in (True, False):  # the config switch (COVVIZ_NO_JIT=1 is tested in a subprocess above)
-        tr = ManifoldTracker(ManifoldConfig(n_particles=40, quadrants=quadrants, jit=jit), rng=3)
-        assert tr.config.jit == jit
+        tr = ManifoldTracker(ManifoldConfig().replace(n_particles=40, quadrants=quadrants, jit=jit), rng=3)
+        assert tr.config.observation.jit == jit
         tr.init(seq.frame(0).image, seq.init_box)
         tr.update(seq.frame(1).image)
         out[jit] = tr.last_record
@@ -446,5 +446,5 @@ def test_tracker_observes_the_same_with_and_without_jit(monkeypatch, quadrants):
     assert frob_rel(a.descriptors, b.descriptors) < 1e-4  # b's raw float32 moments
     np.testing.assert_allclose(a.distances, b.distances, atol=2e-3)
     if quadrants:
-        np.testing.assert_allclose(a.extras["quadrant_distances"], b.extras["quadrant_distances"], atol=2e-3)
+        np.testing.assert_allclose(a.likelihood.quadrant_distances, b.likelihood.quadrant_distances, atol=2e-3)
     assert a.timings["warp"] == 0.0 and a.timings["features"] > 0.0

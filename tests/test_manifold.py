@@ -138,13 +138,13 @@ def test_partly_outside_box_is_accepted(synth):
 )
 def test_config_validation(kwargs, match):
     with pytest.raises(ValueError, match=match):
-        ManifoldConfig(**kwargs)
+        ManifoldConfig.from_dict(kwargs)
 
 
 @pytest.mark.parametrize("kwargs", [{"template_sigma": float("nan")}, {"smooth_sigma": float("nan")}])
 def test_config_rejects_nan(kwargs):
     with pytest.raises(ValueError):
-        ManifoldConfig(**kwargs)
+        ManifoldConfig.from_dict(kwargs)
 
 
 def test_config_is_frozen():
@@ -397,17 +397,17 @@ def test_weights_follow_the_likelihood_distances(synth):
     diagnostics' likelihood_distances gives the same d_eff at a particle's pose and template.
     (The colour term's share is tested in tests/test_quality.py; here it is off.)"""
     seq, frames = synth
-    cfg = ManifoldConfig(n_particles=40, quadrant_weight=0.7, colour_weight=0.0)
+    cfg = ManifoldConfig().replace(n_particles=40, quadrant_weight=0.7, colour_weight=0.0)
     tr = ManifoldTracker(cfg, rng=3)
     tr.init(frames[0], seq.init_box)
     assert tr.model.quadrant_reference.shape == (4, D, D)
     tr.update(frames[1])  # resamples: the next frame starts from uniform weights
     tr.update(frames[2])
     rec = tr.last_record
-    q, d_eff = rec.extras["quadrant_distances"], rec.extras["likelihood_distances"]
+    q, d_eff = rec.likelihood.quadrant_distances, rec.likelihood.distances
     assert q.shape == (40, 4) and np.all(q >= 0)
     np.testing.assert_allclose(d_eff, np.sqrt(rec.distances**2 + 0.7 * quadrant_term(q)), rtol=1e-12)
-    ll = -(d_eff**2) / (2 * cfg.likelihood_sigma**2)
+    ll = -(d_eff**2) / (2 * cfg.observation.likelihood_sigma**2)
     np.testing.assert_allclose(rec.log_weights, ll - logsumexp(ll), atol=1e-9)
     gray = tr.model.prepare(frames[2])
     for i in (0, 17, 39):
@@ -417,12 +417,12 @@ def test_weights_follow_the_likelihood_distances(synth):
 
 def test_quadrants_off_is_the_papers_likelihood(synth):
     seq, frames = synth
-    tr = ManifoldTracker(ManifoldConfig(n_particles=30, **PAPER_LIKELIHOOD), rng=3)
+    tr = ManifoldTracker(ManifoldConfig(n_particles=30).replace(**PAPER_LIKELIHOOD), rng=3)
     tr.init(frames[0], seq.init_box)
     tr.update(frames[1])
     rec = tr.last_record
-    assert tr.model.quadrant_reference is None and rec.extras["quadrant_distances"] is None
-    np.testing.assert_array_equal(rec.extras["likelihood_distances"], rec.distances)
+    assert tr.model.quadrant_reference is None and rec.likelihood.quadrant_distances is None
+    np.testing.assert_array_equal(rec.likelihood.distances, rec.distances)
     np.testing.assert_allclose(
         tr.model.likelihood_distances(tr.model.prepare(frames[1]), rec.particle_poses[:3], rec.templates[0]),
         spd.distance_riemann(spd.expm(rec.templates[0]), rec.descriptors[:3]),
@@ -436,8 +436,8 @@ def test_manifold_paper_is_the_tracker_without_quadrants(synth):
     seq, frames = synth
     tr = make_tracker("manifold-paper", rng=5, n_particles=30)
     assert tr.name == "manifold-paper" and "manifold-paper" in STOCHASTIC
-    assert tr.config == ManifoldConfig(n_particles=30, **PAPER_LIKELIHOOD) and not tr.config.quadrants
-    ref = ManifoldTracker(ManifoldConfig(n_particles=30, **PAPER_LIKELIHOOD), rng=5)
+    assert tr.config == ManifoldConfig(n_particles=30).replace(**PAPER_LIKELIHOOD) and not tr.config.observation.quadrants
+    ref = ManifoldTracker(ManifoldConfig(n_particles=30).replace(**PAPER_LIKELIHOOD), rng=5)
     for t in (tr, ref):
         t.init(frames[0], seq.init_box)
     for f in frames[1:4]:
@@ -452,17 +452,16 @@ def test_config_round_trips_through_json():
 
     cfg = ManifoldConfig(
         n_particles=123,
-        quadrants=False,
         kinematics=KinematicModel(pos_sigma=(0.05, 0.3)),
         template_sigma_matrix=tuple(tuple(0.01 for _ in range(9)) for _ in range(9)),
-    )
+    ).replace(quadrants=False)
     d = json.loads(json.dumps(cfg.as_dict()))
     assert ManifoldConfig.from_dict(d) == cfg
     assert ManifoldConfig.from_dict({}) == ManifoldConfig()
-    assert ManifoldConfig.from_dict({"likelihood_sigma": 0.7}).likelihood_sigma == 0.7
+    assert ManifoldConfig.from_dict({"likelihood_sigma": 0.7}).observation.likelihood_sigma == 0.7
     with pytest.raises(ValueError, match="unknown ManifoldConfig field.*likelihood_sgima"):
         ManifoldConfig.from_dict({"likelihood_sgima": 0.7})
-    with pytest.raises(ValueError, match="unknown kinematics field"):
+    with pytest.raises(ValueError, match="unknown KinematicModel field"):
         ManifoldConfig.from_dict({"kinematics": {"pos_sigmaa": [0.1, 0.2]}})
-    with pytest.raises(ValueError, match="likelihood_sigma must be positive"):
+    with pytest.raises(ValueError, match="likelihood_sigma must be a number > 0"):
         ManifoldConfig.from_dict({"likelihood_sigma": -1})

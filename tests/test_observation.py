@@ -12,7 +12,13 @@ from covviz.data.sequences import SyntheticSequence
 from covviz.model import spd
 from covviz.model.descriptor import quadrant_covariances
 from covviz.model.features import normalize_gradients, patch_features, warp_patches
-from covviz.model.observation import OBSERVE_CHUNK, ObservationModel, box_to_pose, quadrant_term
+from covviz.model.observation import (
+    OBSERVE_CHUNK,
+    ObservationConfig,
+    ObservationModel,
+    box_to_pose,
+    quadrant_term,
+)
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 
 
@@ -23,7 +29,7 @@ def seq():
 
 @pytest.fixture(scope="module")
 def model(seq):
-    return ObservationModel.from_config(seq.frame(0).image, seq.init_box, ManifoldConfig())
+    return ObservationModel.build(seq.frame(0).image, seq.init_box, (ManifoldConfig()).observation)
 
 
 def poses_around(box, n, rng, spread=0.3):
@@ -51,7 +57,7 @@ def test_build_fixes_size_and_quadrant_references(seq, model):
     gray = model.prepare(seq.frame(0).image)
     P = warp_patches(gray, [[x + w / 2, y + h / 2, 1.0, 0.0]], (w, h), 32, 1, 1.0)
     _, Q = quadrant_covariances(normalize_gradients(patch_features(P, gain_normalize=True, quadrants=True)), 1e-3)
-    numpy_model = ObservationModel.from_config(seq.frame(0).image, seq.init_box, ManifoldConfig(jit=False))
+    numpy_model = ObservationModel.build(seq.frame(0).image, seq.init_box, (ManifoldConfig().replace(jit=False)).observation)
     np.testing.assert_array_equal(numpy_model.quadrant_reference, Q[0])  # the numpy path, bit for bit
     # The compiled kernels (when there) observe the same, up to the numpy path's float32 moments.
     np.testing.assert_allclose(model.quadrant_reference, Q[0], rtol=1e-4, atol=1e-9)
@@ -75,7 +81,7 @@ def test_large_target_downsamples_with_exact_factors(seq):
     assert m.step_xy == (320 / 160, 240 / 120)
     assert "downsampled" in m.describe()
     # No anti-aliasing when asked: the full-resolution frame.
-    assert ObservationModel.build(frame, [60, 40, 150, 140], antialias=False).prepare(frame).shape == (240, 320)
+    assert ObservationModel.build(frame, [60, 40, 150, 140], ObservationConfig(antialias=False)).prepare(frame).shape == (240, 320)
 
 
 def test_build_refuses_a_bad_box_and_an_odd_patch_for_quadrants(seq):
@@ -84,11 +90,11 @@ def test_build_refuses_a_bad_box_and_an_odd_patch_for_quadrants(seq):
     with pytest.raises(InputError, match="outside"):
         ObservationModel.build(seq.frame(0).image, [1000, 1000, 10, 10])
     with pytest.raises(ValueError, match="even patch_size"):
-        ObservationModel.build(seq.frame(0).image, seq.init_box, patch_size=31)
+        ObservationModel.build(seq.frame(0).image, seq.init_box, ObservationConfig(patch_size=31))
 
 
 def test_paper_likelihood_has_no_quadrants(seq):
-    m = ObservationModel.from_config(seq.frame(0).image, seq.init_box, ManifoldConfig(quadrants=False))
+    m = ObservationModel.build(seq.frame(0).image, seq.init_box, (ManifoldConfig().replace(quadrants=False)).observation)
     assert not m.quadrants and m.quadrant_reference is None and m.quadrant_logdet is None
     gray = m.prepare(seq.frame(1).image)
     rng = np.random.default_rng(1)
@@ -167,24 +173,23 @@ def test_box_to_pose():
 # --------------------------------------------------------------------------- #
 # the tracker is a shell over the model
 # --------------------------------------------------------------------------- #
-def test_init_record_carries_the_model_the_tracker_weighs_with(seq):
+def test_the_tracker_exposes_the_model_it_weighs_with(seq):
     frames = [seq.frame(i).image for i in range(3)]
     with ManifoldTracker(ManifoldConfig(n_particles=60), rng=2) as tr:
         tr.init(frames[0], seq.init_box)
-        m = tr.last_record.model
+        m = tr.observation_model
         assert m is tr.model
-        ref = ObservationModel.from_config(frames[0], seq.init_box, tr.config)
+        ref = ObservationModel.build(frames[0], seq.init_box, tr.config.observation)
         assert dataclasses.asdict(m).keys() == dataclasses.asdict(ref).keys()
         for k, v in dataclasses.asdict(ref).items():
             np.testing.assert_array_equal(getattr(m, k), v, err_msg=k)
         tr.update(frames[1])
         rec = tr.last_record
-        assert rec.model is None  # only the init record carries it
         # What the model says at the particles' poses is what the tracker weighed them by.
-        cmap = m.colour_map(frames[1], rec.extras["colour_state"])
+        cmap = m.colour_map(frames[1], rec.inputs.colour_state)
         ob = m.observe(m.prepare(frames[1]), rec.particle_poses, rec.templates, colour=cmap)
         np.testing.assert_array_equal(ob.descriptors, rec.descriptors)
-        np.testing.assert_array_equal(ob.likelihood_distances, rec.extras["likelihood_distances"])
+        np.testing.assert_array_equal(ob.likelihood_distances, rec.likelihood.distances)
 
 
 def test_close_shuts_the_threads_and_refuses_more_work(seq):

@@ -117,45 +117,46 @@ def run(cfg, synth, n_frames=4, rng=3):
 
 
 def test_d_eff_is_the_template_distance_plus_the_weighted_terms(synth):
-    cfg = ManifoldConfig(n_particles=40, colour_weight=4.0, quadrant_weight=0.7, threads=1)
+    cfg = ManifoldConfig().replace(n_particles=40, colour_weight=4.0, quadrant_weight=0.7, threads=1)
     tr, _ = run(cfg, synth)
     rec = tr.last_record
-    terms, w = rec.extras["terms"], rec.extras["term_weights"]
+    terms, w = rec.likelihood.terms, rec.likelihood.term_weights
     assert set(terms) == {"quadrants", "colour"} and w == {"quadrants": 0.7, "colour": 4.0}
     assert all(v.shape == (40,) and np.all(v >= 0) for v in terms.values())
-    np.testing.assert_allclose(terms["quadrants"], quadrant_term(rec.extras["quadrant_distances"]), rtol=1e-12)
+    np.testing.assert_allclose(terms["quadrants"], quadrant_term(rec.likelihood.quadrant_distances), rtol=1e-12)
     d2 = rec.distances**2 + 0.7 * terms["quadrants"] + 4.0 * terms["colour"]
-    np.testing.assert_allclose(rec.extras["likelihood_distances"] ** 2, d2, rtol=1e-12)
-    ll = -d2 / (2 * cfg.likelihood_sigma**2)
+    np.testing.assert_allclose(rec.likelihood.distances ** 2, d2, rtol=1e-12)
+    ll = -d2 / (2 * cfg.observation.likelihood_sigma**2)
     np.testing.assert_allclose(rec.log_weights, ll - logsumexp(ll), atol=1e-9)
     # The model, given the frame and the state the record carries, says the same at a particle.
     _seq, frames = synth
-    cmap = tr.model.colour_map(frames[3], rec.extras["colour_state"])
+    cmap = tr.model.colour_map(frames[3], rec.inputs.colour_state)
     gray = tr.model.prepare(frames[3])
     for i in (0, 21):
         di = tr.model.likelihood_distances(gray, rec.particle_poses[i], rec.templates[i], colour=cmap)
-        np.testing.assert_allclose(di, rec.extras["likelihood_distances"][i : i + 1], rtol=1e-9)
+        np.testing.assert_allclose(di, rec.likelihood.distances[i : i + 1], rtol=1e-9)
 
 
 def test_new_terms_keep_boxes_independent_of_threads(synth):
     kw = {"n_particles": 320, "colour_weight": 3.0, "quadrant_reliability": 0.05, "quadrant_ref_rate": 0.02,
               "anchor_pull": 0.05, "anchor_rate": 0.02, "refine_fraction": 0.25, "scale_steps": 2, "rotation_steps": 1}
-    _, b1 = run(ManifoldConfig(threads=1, **kw), synth, 5)
-    _, b2 = run(ManifoldConfig(threads=2, **kw), synth, 5)
+    _, b1 = run(ManifoldConfig(threads=1).replace(**kw), synth, 5)
+    _, b2 = run(ManifoldConfig(threads=2).replace(**kw), synth, 5)
     np.testing.assert_array_equal(b1, b2)
 
 
 def test_manifold_paper_has_none_of_the_new_terms(synth):
     tr = make_paper(n_particles=30, rng=1)
     c = tr.config
-    assert not c.quadrants and c.colour_weight == 0 and c.quadrant_reliability == 0 and c.anchor_pull == 0
+    assert not c.observation.quadrants and c.observation.colour_weight == 0
+    assert c.quadrant_reliability == 0 and c.anchor_pull == 0
     assert c.refine_fraction == 0 and c.scale_steps == 0 and c.rotation_steps == 0
     seq, frames = synth
     tr.init(frames[0], seq.init_box)
     tr.update(frames[1])
     rec = tr.last_record
-    assert rec.extras["terms"] == {} and rec.extras["term_weights"] == {}
-    np.testing.assert_array_equal(rec.extras["likelihood_distances"], rec.distances)
+    assert rec.likelihood.terms == {} and rec.likelihood.term_weights == {}
+    np.testing.assert_array_equal(rec.likelihood.distances, rec.distances)
     tr.close()
 
 
@@ -221,7 +222,7 @@ def test_second_stage_children_sit_near_the_best_particles(synth):
     cfg = ManifoldConfig(n_particles=200, refine_fraction=0.25, refine_top=5, threads=1)
     tr, _ = run(cfg, synth, 3)
     rec = tr.last_record
-    modes = rec.extras["modes"]
+    modes = rec.modes
     assert (modes[-50:] == 2).all() and (modes[:150] != 2).all()
     assert len(rec.log_weights) == 200 and np.isfinite(rec.log_weights).all()
     # children are close to each other (a few parents, shrunken noise) compared with the first stage
@@ -238,7 +239,7 @@ def test_parabolic_step_finds_a_parabola_minimum():
 
 def test_pose_search_scores_what_the_likelihood_says(synth):
     seq, frames = synth
-    model = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig())
+    model = ObservationModel.build(frames[0], seq.init_box, (ManifoldConfig()).observation)
     gray = model.prepare(frames[0])
     x, y, w, h = seq.init_box
     pose = np.array([x + w / 2, y + h / 2, 1.0, 0.0])
@@ -272,7 +273,7 @@ def test_pose_search_scores_what_the_likelihood_says(synth):
 )
 def test_new_config_fields_are_validated(kwargs, match):
     with pytest.raises(ValueError, match=match):
-        ManifoldConfig(**kwargs)
+        ManifoldConfig.from_dict(kwargs)
 
 
 # --------------------------------------------------------------------------- #
@@ -298,15 +299,15 @@ def test_normalized_gradients_have_unit_mean_in_both_layouts(rng):
 
 def test_gradient_normalisation_kernel_matches_the_numpy_path(synth):
     seq, frames = synth
-    mj = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(grad_normalize=True))
-    mn = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(grad_normalize=True, jit=False))
+    mj = ObservationModel.build(frames[0], seq.init_box, (ManifoldConfig().replace(grad_normalize=1.0)).observation)
+    mn = ObservationModel.build(frames[0], seq.init_box, (ManifoldConfig().replace(grad_normalize=1.0, jit=False)).observation)
     gray = mj.prepare(frames[2])
     x, y, w, h = seq.init_box
     poses = np.array([[x + w / 2, y + h / 2, s, t] for s, t in ((1.0, 0.0), (0.8, 0.1), (1.3, -0.2))])
     a, b = mj.observe(gray, poses), mn.observe(gray, poses)
     np.testing.assert_allclose(a.descriptors, b.descriptors, rtol=1e-4, atol=1e-6)
     np.testing.assert_allclose(a.quadrants, b.quadrants, rtol=1e-4, atol=1e-6)
-    plain = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(grad_normalize=0.0)).observe(gray, poses)
+    plain = ObservationModel.build(frames[0], seq.init_box, (ManifoldConfig().replace(grad_normalize=0.0)).observation).observe(gray, poses)
     assert not np.allclose(plain.descriptors, a.descriptors)
 
 
@@ -314,27 +315,27 @@ def test_gradient_normalisation_kernel_matches_the_numpy_path(synth):
 def test_frame_inputs_say_what_update_weighed_by(synth, extra):
     """The model, given a frame and its record's extras, gives every particle's d_eff exactly: what the
     recorder's likelihood map and slices and the diagnosis ask through it."""
-    cfg = ManifoldConfig(n_particles=40, threads=1, **extra)
+    cfg = ManifoldConfig(n_particles=40, threads=1).replace(**extra)
     tr, _ = run(cfg, synth, n_frames=5)
     rec = tr.last_record
     _seq, frames = synth
-    inputs = tr.model.frame_inputs(frames[4], rec.extras)
+    inputs = rec.inputs.likelihood_kwargs()
     assert set(inputs) == ({"colour", "quadrant_state"} if extra else {"colour"})
     gray = tr.model.prepare(frames[4])
     d = tr.model.likelihood_distances(gray, rec.particle_poses, rec.templates, **inputs)
-    np.testing.assert_allclose(d, rec.extras["likelihood_distances"], rtol=1e-9)
+    np.testing.assert_allclose(d, rec.likelihood.distances, rtol=1e-9)
     for i in (0, 17):
         one = tr.model.template_scores(gray, rec.particle_poses[i], rec.templates[i][None], **inputs)
-        np.testing.assert_allclose(one, rec.extras["likelihood_distances"][i : i + 1], rtol=1e-9)
+        np.testing.assert_allclose(one, rec.likelihood.distances[i : i + 1], rtol=1e-9)
         # The parts of d_eff²: the template distance² and each weighted term, as update() weighed them.
         d_eff, parts = tr.model.template_scores(gray, rec.particle_poses[i], rec.templates[i][None], **inputs,
                                                 parts=True)
         np.testing.assert_array_equal(d_eff, one)
-        assert set(parts) == {"descriptor", *rec.extras["terms"]}
+        assert set(parts) == {"descriptor", *rec.likelihood.terms}
         np.testing.assert_allclose(sum(parts.values()), d_eff**2, rtol=1e-12)
         np.testing.assert_allclose(parts["descriptor"], rec.distances[i] ** 2, rtol=1e-9)
-        for k, t in rec.extras["terms"].items():
-            np.testing.assert_allclose(parts[k], rec.extras["term_weights"][k] * t[i], rtol=1e-9, atol=1e-12)
+        for k, t in rec.likelihood.terms.items():
+            np.testing.assert_allclose(parts[k], rec.likelihood.term_weights[k] * t[i], rtol=1e-9, atol=1e-12)
     tr.close()
 
 
@@ -343,9 +344,26 @@ def test_frame_inputs_of_the_papers_likelihood_are_empty(synth):
     seq, frames = synth
     tr.init(frames[0], seq.init_box)
     tr.update(frames[1])
-    assert tr.model.frame_inputs(frames[1], tr.last_record.extras) == {}
-    assert tr.model.frame_inputs(frames[1], None) == {}
+    rec = tr.last_record
+    assert rec.inputs.likelihood_kwargs() == {} and rec.extras == {}
+    np.testing.assert_array_equal(rec.inputs.gray, tr.model.prepare(frames[1]))  # the frame update() read
     tr.close()
+
+
+def test_manifold_records_carry_nothing_in_extras(synth):
+    """Everything the manifold trackers emit has a typed field: extras is only for what a baseline adds."""
+    seq, frames = synth
+    for make_one in (make_paper, lambda **kw: ManifoldTracker(ManifoldConfig(n_particles=kw["n_particles"]),
+                                                            rng=kw["rng"])):
+        tr = make_one(n_particles=20, rng=1)
+        tr.init(frames[0], seq.init_box)
+        assert tr.last_record.extras == {}
+        for f in frames[1:4]:
+            tr.update(f)
+            rec = tr.last_record
+            assert rec.extras == {}
+            assert rec.likelihood is not None and rec.inputs is not None and rec.modes.shape == (20,)
+        tr.close()
 
 
 def test_gradient_floor_bounds_the_normaliser(rng):
@@ -371,26 +389,26 @@ def test_gradient_floor_kernel_matches_the_numpy_path(synth):
     seq, frames = synth
     x, y, w, h = seq.init_box
     poses = np.array([[x + w / 2, y + h / 2, s, t] for s, t in ((1.0, 0.0), (0.8, 0.1), (1.3, -0.2))])
-    m0 = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(grad_normalize=0.0))
+    m0 = ObservationModel.build(frames[0], seq.init_box, (ManifoldConfig().replace(grad_normalize=0.0)).observation)
     gray = m0.prepare(frames[2])
     F = patch_features(warp_patches(gray, poses, m0.base_wh, 32, 1, m0._sample_step()), gain_normalize=True, quadrants=True)
     levels = F[:, :, 5].astype(np.float64).mean(axis=(1, 2))
     floor = float(np.median(levels))  # binds at some poses, not at others
     assert levels.min() < floor < levels.max() or np.ptp(levels) == 0
     cfg = {"grad_normalize": 1.0, "grad_floor": floor}
-    mj = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(**cfg))
-    mn = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(**cfg, jit=False))
+    mj = ObservationModel.build(frames[0], seq.init_box, (ManifoldConfig().replace(**cfg)).observation)
+    mn = ObservationModel.build(frames[0], seq.init_box, (ManifoldConfig().replace(**cfg, jit=False)).observation)
     assert mj.grad_floor == floor and mj.compiled and not mn.compiled
     a, b = mj.observe(gray, poses), mn.observe(gray, poses)
     np.testing.assert_allclose(a.descriptors, b.descriptors, rtol=1e-4, atol=1e-6)
     np.testing.assert_allclose(a.quadrants, b.quadrants, rtol=1e-4, atol=1e-6)
-    unfloored = ObservationModel.from_config(frames[0], seq.init_box, ManifoldConfig(grad_floor=0.0)).observe(
+    unfloored = ObservationModel.build(frames[0], seq.init_box, (ManifoldConfig().replace(grad_floor=0.0)).observation).observe(
         gray, poses)
     assert not np.allclose(unfloored.descriptors, a.descriptors)
 
 
 def test_zero_gradient_floor_is_the_normalisation_of_before(synth):
     """``grad_floor=0`` is the floor of 1e-6 of before: the same boxes as a tiny explicit floor."""
-    _, b0 = run(ManifoldConfig(n_particles=60, grad_floor=0.0), synth, 5)
-    _, b1 = run(ManifoldConfig(n_particles=60, grad_floor=1e-7), synth, 5)
+    _, b0 = run(ManifoldConfig().replace(n_particles=60, grad_floor=0.0), synth, 5)
+    _, b1 = run(ManifoldConfig().replace(n_particles=60, grad_floor=1e-7), synth, 5)
     np.testing.assert_array_equal(b0, b1)

@@ -40,7 +40,7 @@ from covviz.data.sequences import (
 from covviz.errors import WriteError
 from covviz.experiments.results import ResultWriter, box_lines, load_result, result_paths, save_result
 from covviz.records import RunResult
-from covviz.runner import FreeSpaceGuard, ResultCollector, run
+from covviz.runner import NOTHING, FreeSpaceGuard, Observer, ProgressObserver, ResultCollector, run
 from covviz.trackers.base import IdentityTracker
 from covviz.viz import paths as P
 
@@ -215,11 +215,11 @@ def test_stop_signals_restores_the_handlers_when_no_signal_came():
 # --------------------------------------------------------------------------- #
 # the runner and the results writer
 # --------------------------------------------------------------------------- #
-class Ends:
+class Ends(Observer):
     def __init__(self, fail=False):
         self.fail, self.ended = fail, None
 
-    def on_end(self, results):
+    def on_end(self, results, found):
         self.ended = len(results[0].boxes)
         if self.fail:
             raise RuntimeError("on_end broke")
@@ -251,13 +251,13 @@ def test_on_end_failures_of_a_stopped_run_are_notes_on_its_exception():
 def test_on_progress_gets_the_frames_so_far_marked_interrupted():
     seq = SyntheticSequence(SyntheticConfig(n_frames=6))
 
-    class Progress:
+    class Progress(ProgressObserver):
         progress_seconds = 0.0
 
         def __init__(self):
             self.seen = []
 
-        def on_progress(self, results):
+        def on_progress(self, results, found):
             self.seen.append((len(results[0].boxes), results[0].interrupted))
 
     ob = Progress()
@@ -277,9 +277,9 @@ def test_result_writer_files_are_those_of_save_result(tmp_path):
     w = ResultWriter(tmp_path / "a", progress_seconds=0)
     for k in range(2, 30, 7):
         w.on_progress([RunResult(res.sequence, res.tracker, res.seed, res.boxes[:k], res.times[:k],
-                                 res.groundtruth[:k], res.config, interrupted=True)])
+                                 res.groundtruth[:k], res.config, interrupted=True)], NOTHING)
         assert w.saved_frames == k
-    w.on_end([res])
+    w.on_end([res], NOTHING)
     save_result(res, tmp_path / "b")
     for a, b in zip(result_paths(tmp_path / "a", "seqA", "manifold", 1), result_paths(tmp_path / "b", "seqA",
                                                                                       "manifold", 1)):
@@ -348,8 +348,8 @@ def test_free_space_guard_stops_the_run_while_there_is_room(tmp_path, monkeypatc
     monkeypatch.setattr(runner.shutil, "disk_usage", lambda p: usage(10**9, 0, state["free"]))
     seq = SyntheticSequence(SyntheticConfig(n_frames=20))
 
-    class Fill:
-        def on_frame(self, frame, records):
+    class Fill(Observer):
+        def on_frame(self, frame, records, found):
             if frame.index == 5:
                 state["free"] = 1_000_000
 

@@ -7,25 +7,34 @@ import threading
 import pytest
 
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
-from covviz.runner import BackgroundObserver, ResultCollector, run
+from covviz.runner import (
+    NOTHING,
+    BackgroundObserver,
+    Findings,
+    Observer,
+    Pipeline,
+    ResultCollector,
+    run,
+    run_many,
+)
 from covviz.trackers.base import IdentityTracker
 
 
-class Recorder:
+class Recorder(Observer):
     def __init__(self, fail_at=None):
         self.frames, self.threads, self.ended = [], set(), None
         self.fail_at = fail_at
 
-    def on_start(self, sequence, trackers):
+    def on_start(self, start, found):
         self.started = True
 
-    def on_frame(self, frame, records):
+    def on_frame(self, frame, records, found):
         if frame.index == self.fail_at:
             raise RuntimeError("observer broke")
         self.frames.append(frame.index)
         self.threads.add(threading.get_ident())
 
-    def on_end(self, results):
+    def on_end(self, results, found):
         self.ended = [len(r.boxes) for r in results]
 
 
@@ -70,10 +79,59 @@ def test_tracker_error_drains_the_queue_first(seq):
 def test_every_observer_ends_even_when_one_fails_at_the_end(seq):
     # The failing observer comes first: the collector after it must still get the results.
     class FailsAtEnd(Recorder):
-        def on_end(self, results):
+        def on_end(self, results, found):
             raise OSError("disk full")
 
     collector = ResultCollector()
     with pytest.raises(OSError, match="disk full"):
         run(IdentityTracker(), seq, [FailsAtEnd(), collector])
     assert collector.results and len(collector.results[0].boxes) == len(seq)
+
+
+def test_observers_are_told_the_trackers_once_after_init(seq):
+    class Start(Observer):
+        def on_start(self, start, found):
+            self.start = start
+
+    ob = Start()
+    run_many([IdentityTracker(), IdentityTracker()], seq, [ob], max_frames=5, seeds=[1, 2])
+    infos = ob.start.trackers
+    assert [i.name for i in infos] == ["identity", "identity"] and ob.start.seeds == (1, 2)
+    assert ob.start.n_frames == 5 and all(i.model is None and i.snapshots for i in infos)
+
+
+def test_findings_flow_down_the_pipeline_in_order(seq):
+    """Each observer is handed what those before it found; the first one sees nothing."""
+    seen = []
+
+    class Finder(Observer):
+        def on_start(self, start, found):
+            seen.append(("start-finder", found))
+            return Findings(diagnosis="view")
+
+        def on_frame(self, frame, records, found):
+            return Findings(diagnosis=found.diagnosis, news=(frame.index,))
+
+    class Reader(Observer):
+        def on_start(self, start, found):
+            seen.append(("start-reader", found.diagnosis))
+
+        def on_frame(self, frame, records, found):
+            seen.append(("frame", found.news))
+
+        def on_end(self, results, found):
+            seen.append(("end", found.diagnosis))
+
+    run(IdentityTracker(), seq, [Pipeline([Finder(), Reader()])], max_frames=3)
+    assert seen[0] == ("start-finder", NOTHING) and seen[1] == ("start-reader", "view")
+    assert [s for s in seen if s[0] == "frame"] == [("frame", (0,)), ("frame", (1,)), ("frame", (2,))]
+    assert seen[-1] == ("end", "view")
+
+
+def test_an_object_that_is_not_an_observer_is_refused(seq):
+    class Duck:
+        def on_frame(self, frame, records):
+            pass
+
+    with pytest.raises(TypeError, match="not an Observer"):
+        run(IdentityTracker(), seq, [Duck()])

@@ -50,12 +50,12 @@ def test_every_corner_of_the_space_is_a_valid_config(end):
 
 
 def test_config_from_params_sets_nested_fields_and_keeps_the_base():
-    base = ManifoldConfig(n_particles=50, quadrants=False)
+    base = ManifoldConfig().replace(n_particles=50, quadrants=False)
     cfg = config_from_params({"kinematics.pos_sigma.0": 0.07, "likelihood_sigma": 0.8}, base)
     assert cfg.kinematics.pos_sigma == (0.07, base.kinematics.pos_sigma[1])
-    assert cfg.likelihood_sigma == 0.8 and cfg.n_particles == 50 and cfg.quadrants is False
+    assert cfg.observation.likelihood_sigma == 0.8 and cfg.n_particles == 50 and cfg.observation.quadrants is False
     assert config_from_params(search_params(base), base) == base
     with pytest.raises(ValueError, match="unknown ManifoldConfig parameter 'nope'"):
         config_from_params({"nope": 1.0})
-    with pytest.raises(ValueError, match="likelihood_sigma must be positive"):
+    with pytest.raises(ValueError, match="likelihood_sigma must be a number > 0"):
         config_from_params({"likelihood_sigma": 0.0})

@@ -162,9 +162,9 @@ def test_a_hopeless_trial_is_pruned_and_its_other_jobs_stopped():
 
 
 def test_jobs_of_a_trial_carry_its_config_and_the_seed_rule():
-    cfg = ManifoldConfig(likelihood_sigma=0.7).as_dict()
+    cfg = ManifoldConfig().replace(likelihood_sigma=0.7).as_dict()
     jobs = settings(2, 2).jobs(cfg, [3, 4])
     assert [j.label for j in jobs] == ["s0/manifold/s3", "s0/manifold/s4", "s1/manifold/s3", "s1/manifold/s4"]
     assert all(isinstance(j, Job) and json.loads(j.config) == cfg and j.particles == 20 for j in jobs)
     tr = jobs[0].make_tracker()
-    assert tr.config.likelihood_sigma == 0.7 and tr.config.n_particles == 20
+    assert tr.config.observation.likelihood_sigma == 0.7 and tr.config.n_particles == 20

@@ -7,9 +7,10 @@ import pytest
 from viz_helpers import boxes, last, read_recording, rrd_verify, scalar_series, static_text, texts
 
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
+from covviz.diagnosis.drift import Diagnoser
 from covviz.metrics import center_error, iou
 from covviz.records import FrameRecord
-from covviz.runner import run_many
+from covviz.runner import Observer, Pipeline, run_many
 from covviz.trackers.base import IdentityTracker
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz import paths as P
@@ -22,14 +23,14 @@ N_PARTICLES = 50
 MDS_EVERY = 4
 
 
-class Collector:
+class Collector(Observer):
     """Keeps every FrameRecord handed to observers."""
 
     def __init__(self):
         self.records: list[list[FrameRecord]] = []
         self.frames = []
 
-    def on_frame(self, frame, records):
+    def on_frame(self, frame, records, found):
         self.records.append(list(records))
         self.frames.append(frame)
 
@@ -38,9 +39,10 @@ def record_run(path, trackers, n_frames=N_FRAMES, config=None, fail_at=None):
     seq = SyntheticSequence(SyntheticConfig(n_frames=n_frames))
     stream = new_recording()
     attach_sinks(stream, save=path)
-    logger = RerunLogger(stream, config or LoggerConfig(mds_every=MDS_EVERY, seed=0))
+    cfg = config or LoggerConfig(mds_every=MDS_EVERY, seed=0)
+    logger = RerunLogger(stream, cfg)
     col = Collector()
-    run_many(trackers, seq, [col, logger])
+    run_many(trackers, seq, [col, Pipeline([Diagnoser(cfg.diagnosis), logger])])
     return seq, col, logger
 
 
@@ -189,9 +191,9 @@ def test_particles_and_weights_equal_the_records(run):
         # What each top particle was weighed by: the template distance, the likelihood's
         # distance (with the quadrant term) and the four quadrant distances.
         np.testing.assert_allclose(top_d[f], rec.distances[idx], rtol=1e-12)
-        np.testing.assert_allclose(top_dl[f], rec.extras["likelihood_distances"][idx], rtol=1e-12)
+        np.testing.assert_allclose(top_dl[f], rec.likelihood.distances[idx], rtol=1e-12)
         for j in range(4):
-            np.testing.assert_allclose(top_q[j][f], rec.extras["quadrant_distances"][idx, j], rtol=1e-12)
+            np.testing.assert_allclose(top_q[j][f], rec.likelihood.quadrant_distances[idx, j], rtol=1e-12)
 
 
 def test_scalars_equal_the_records(run):
@@ -223,7 +225,7 @@ def test_likelihood_terms_equal_the_records(run):
     """Each term of d_eff²: its weighted value on every top particle, its share and the weight it moved."""
     t = run["temporal"]
     p = P.TrackerPaths("manifold")
-    sigma = ManifoldConfig().likelihood_sigma
+    sigma = ManifoldConfig().observation.likelihood_sigma
     parts = ("descriptor", "quadrants", "colour")  # the default likelihood's
     share = {k: scalar_series(t, p.term_share(k)) for k in parts}
     moved = {k: scalar_series(t, p.term_moved(k)) for k in parts}
@@ -231,8 +233,8 @@ def test_likelihood_terms_equal_the_records(run):
     top_terms = {k: last(t, p.top, f"term_{k}") for k in parts[1:]}
     for i in range(1, N_FRAMES):
         rec, f = run["col"].records[i][0], i + 1
-        w, tw = rec.weights, rec.extras["term_weights"]
-        contrib = {k: tw[k] * rec.extras["terms"][k] for k in parts[1:]}
+        w, tw = rec.weights, rec.likelihood.term_weights
+        contrib = {k: tw[k] * rec.likelihood.terms[k] for k in parts[1:]}
         for k, c in contrib.items():
             np.testing.assert_allclose(top_terms[k][f], c[top_i[f]], rtol=1e-12)
         exp_share, exp_moved = term_shares(w, rec.distances, contrib, sigma)
@@ -414,3 +416,17 @@ def test_text_shown_in_the_viewer_has_glyphs_in_its_font():
     for text in (DESCRIPTION, MDS_DESCRIPTION):
         assert viewer_safe(text) == text
     assert viewer_safe("Car ∇ 4 ≥ ∝") == "Car ? 4 ≥ ?"
+
+
+def test_the_same_boxes_with_and_without_the_recorder(tmp_path):
+    """The recorder (and the diagnosis before it, on their own thread) never changes a box, to the last bit."""
+    from covviz.runner import BackgroundObserver, run
+
+    seq = SyntheticSequence(SyntheticConfig(n_frames=40))
+    bare = run(ManifoldTracker(ManifoldConfig(n_particles=N_PARTICLES), rng=7), seq, [])
+    stream = new_recording()
+    attach_sinks(stream, save=tmp_path / "r.rrd")
+    cfg = LoggerConfig(mds_every=3, seed=0)
+    traced = run(ManifoldTracker(ManifoldConfig(n_particles=N_PARTICLES), rng=7), seq,
+                 [BackgroundObserver(Pipeline([Diagnoser(cfg.diagnosis), RerunLogger(stream, cfg)]))])
+    assert np.array_equal(bare.boxes, traced.boxes)

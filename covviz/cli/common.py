@@ -108,12 +108,14 @@ def add_recording_args(p: argparse.ArgumentParser, mds_options: bool = True) -> 
     )
     v.add_argument("--serve-web", action="store_true", help="also host a web viewer and stream to it")
     if mds_options:
+        from covviz.viz.defaults import MDS_EVERY
+
         g.add_argument(
             "--mds-every",
             type=nonneg_int,
-            default=10,
+            default=MDS_EVERY,
             metavar="K",
-            help="MDS picture of the template cloud every K frames (default 10; 0: never)",
+            help=f"MDS picture of the template cloud every K frames (default {MDS_EVERY}; 0: never)",
         )
         g.add_argument(
             "--likelihood-every",

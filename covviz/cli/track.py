@@ -112,7 +112,7 @@ def _recording_observers(
     from covviz.runner import BackgroundObserver
 
     if save is None and not live:
-        return [BackgroundObserver(diagnoser)], None
+        return [BackgroundObserver(diagnoser)], None  # the diagnosis alone, on its own thread
     if save is not None:
         _check_recording_path(save, n_frames, len(args.trackers), created)
     _check_viewer(args)
@@ -132,8 +132,11 @@ def _recording_observers(
         "max_frames": args.max_frames,
         "particles": args.particles,
     }
-    # The recorder logs on its own thread, overlapping the tracker (runner.BackgroundObserver).
-    return [BackgroundObserver(RerunLogger(stream, config, run_info=info, diagnoser=diagnoser))], save
+    # The diagnosis, then the recorder that shows what it found, on one thread of their own that
+    # overlaps the tracker (runner.BackgroundObserver); the results writer comes after them.
+    from covviz.runner import Pipeline
+
+    return [BackgroundObserver(Pipeline([diagnoser, RerunLogger(stream, config, run_info=info)]))], save
 
 def cmd_track(args) -> int:
     # One native thread for BLAS and OpenCV while tracking: more only contend with the
@@ -146,8 +149,9 @@ def cmd_track(args) -> int:
 def _warm_kernels(trackers) -> None:
     """Compile the manifold tracker's kernels before the run (once per install; then loaded from the cache)."""
     from covviz.model import kernels
+    from covviz.trackers import CONFIGURABLE
 
-    if kernels.JIT_ENABLED and any(getattr(getattr(t, "config", None), "jit", False) for t in trackers):
+    if kernels.JIT_ENABLED and any(t.config.observation.jit for t in trackers if t.name in CONFIGURABLE):
         if kernels.kernels_cached():
             return  # each kernel loads from numba's cache at its first call (only those the run uses)
         took = kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
@@ -233,16 +237,11 @@ def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> in
     from covviz.runner import FreeSpaceGuard, ResultCollector, run_many
     from covviz.signals import exit_code
 
-    def extra(j: int) -> dict:
-        """What the drift diagnosis found for tracker ``j`` so far, for its results JSON."""
-        if j >= len(diagnoser.states):
-            return {}
-        return {"diagnosis": diagnoser.report(j), "diagnosis_config": diagnoser.config.as_dict()}
-
     # The results are on disk while the run goes (every second, and at the end): what a kill, a
-    # signal or a full disk leaves is the frames done. The writer ends after the recorder (whose
-    # thread also runs the drift diagnosis), so the final files hold the whole diagnosis.
-    writer = ResultWriter(args.out, extra=extra)
+    # signal or a full disk leaves is the frames done. The pipeline's order: the free-space guard,
+    # the diagnosis (and the recorder after it, on their own thread), then the results writer, which
+    # is handed the diagnosis by the observers before it, so the final files hold all of it.
+    writer = ResultWriter(args.out)
     guard = FreeSpaceGuard([args.out, *([rrd] if rrd is not None else [])])
     collector = ResultCollector()
     observers = [*getattr(args, "observers", []), guard, *recorders, writer, collector]

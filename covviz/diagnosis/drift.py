@@ -31,16 +31,19 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
+from covviz.config import ConfigError, Spec, check
 from covviz.diagnosis.events import EVENT_DEFAULTS, Event, EventConfig, EventDetector
 from covviz.metrics import iou
+from covviz.model.features import pose_to_box
 from covviz.model.image import to_gray
 from covviz.model.observation import ObservationModel, box_to_pose
 from covviz.model.particles import effective_sample_size
 from covviz.model.spd import distance_jbld, distance_riemann, logdet, mean_logeuclid
+from covviz.runner import Findings, Observer, RunStart
 
 __all__ = [
     "CAUSES",
@@ -63,135 +66,117 @@ CAUSES = ("fast_motion", "scale", "illumination", "distractor", "occlusion", "ap
 #: Kinds of label-free suspect events.
 SUSPECTS = ("collapse", "distance_jump", "second_mode", "scale_runaway")
 
-# ---- per-frame evidence ------------------------------------------------------------------------
-#: A frame is on track (label ``ok``) when its IoU with the ground truth is at least this.
-ON_TRACK_IOU = 0.5
-#: A particle has reached the truth when its box has at least this IoU with the ground-truth box.
-NEAR_IOU = 0.5
-#: Templates of the cloud scored at the truth and the estimate (an evenly strided subset plus the top ones).
-CLOUD_TEMPLATES = 64
-#: The heaviest templates always among them.
-CLOUD_TOP = 20
-#: Frames of evidence kept per tracker (bounds memory; a diagnosis looks back at most this far).
-HISTORY = 300
-#: Particles farther than this (target sizes) from the estimate count towards a second mode.
-MODE_DISTANCE = 0.75
-
-# ---- the causes --------------------------------------------------------------------------------
-#: Frames before the drift onset (and after it) that the diagnosis reads.
-LOOK_BEFORE = 3
-#: Frames before that window that define the target's baseline look.
-BASELINE_FRAMES = 8
-#: fast motion: the truth's centre moved at least this many target sizes in one frame ...
-FAST_MOTION = 0.5
-#: ... and (particle trackers) ended farther than this (target sizes) from the nearest particle.
-FAST_OUTSIDE = 0.5
-#: scale: the estimate's size over the truth's (or its inverse) at least this at the loss ...
-SCALE_RATIO = 1.6
-#: ... with the smaller box at least this much inside the larger (the centre held, the size wrong).
-SCALE_CONTAIN = 0.7
-#: Changes of the target's look are measured against the baseline and compared with thresholds that are
-#: at least NOISE_FACTOR times the baseline's own spread (real targets vary from frame to frame).
-NOISE_FACTOR = 2.0
-#: illumination: a quadrant of the target at least this factor darker or brighter than its baseline.
-LIGHT_RATIO = 2.0
-#: occlusion: on some frame, a quadrant's descriptor moved at least this far (sqrt(8 J)) from its baseline ...
-QUADRANT_JUMP = 3.0
-#: ... while another stayed within this of its own, or changed at most 1/PARTIAL_RATIO as much (an occluder
-#: entering from one side); or (a static occluder hiding all of it) the region
-#: shows what stood at that place before the target came: a descriptor within TARGET_HOLD of the scene's
-#: there, and at most half as far from it as from the target's baseline.
-QUADRANT_HOLD = 2.0
-PARTIAL_RATIO = 2.0
-#: Frames kept to look up the scene at the target's place before it came (the most recent one where the
-#: target's box overlapped today's by at most SCENE_IOU).
-SCENE_FRAMES = 30
-SCENE_IOU = 0.1
-#: distractor: at the loss, the target still looks as before (d of the whole region, gain-normalised,
-#: from its baseline, at most this) ...
-TARGET_HOLD = 2.5
-#: ... and the region the tracker followed looks like the target too (at most this from the baseline) ...
-DISTRACTOR_LOOK = 2.0
-#: ... and the likelihood scores that region at least as well as the truth (d_eff margin).
-DISTRACTOR_MARGIN = 0.0
-#: appearance: on some frame, the target's look moved at least this far from its baseline ...
-APPEARANCE_CHANGE = 2.5
-#: ... and every quadrant at least this far: a change of the whole target, not of a part.
-APPEARANCE_QUADRANT = 2.0
-#: impoverishment: ESS/N below this on at least IMPOVERISHED_FRAMES frames of the window.
-IMPOVERISHED_ESS = 0.02
-IMPOVERISHED_FRAMES = 3
-
-# ---- suspects (no ground truth) ----------------------------------------------------------------
-#: collapse: ESS/N below this ...
-SUSPECT_ESS = 0.01
-#: ... on this many consecutive frames.
-SUSPECT_ESS_FRAMES = 3
-#: distance jump: the best particle distance above its running median by this many running MADs ...
-SUSPECT_MADS = 6.0
-#: ... over a running window of this many frames (and at least this many frames seen).
-SUSPECT_WINDOW = 30
-#: second mode: at least this share of the weight sits MODE_DISTANCE or more from the estimate ...
-SUSPECT_MODE_MASS = 0.25
-#: ... on this many consecutive frames.
-SUSPECT_MODE_FRAMES = 2
-#: scale runaway: the estimate's scale changed by this factor within SUSPECT_WINDOW frames.
-SUSPECT_SCALE = 1.8
-#: A suspect matches a loss when it is raised between MATCH_BEFORE frames before the drift began and
-#: MATCH_AFTER frames after the loss.
-MATCH_BEFORE = 10
-MATCH_AFTER = 5
 
 
 @dataclass(frozen=True)
 class DiagnosisConfig:
-    """Every threshold of the diagnosis (defaults: the module constants)."""
+    """Every threshold of the diagnosis, with its default (each field's range: :data:`DIAGNOSIS_SPECS`)."""
 
-    on_track_iou: float = ON_TRACK_IOU
-    near_iou: float = NEAR_IOU
-    cloud_templates: int = CLOUD_TEMPLATES
-    cloud_top: int = CLOUD_TOP
-    history: int = HISTORY
-    mode_distance: float = MODE_DISTANCE
-    look_before: int = LOOK_BEFORE
-    baseline_frames: int = BASELINE_FRAMES
-    fast_motion: float = FAST_MOTION
-    fast_outside: float = FAST_OUTSIDE
-    scale_ratio: float = SCALE_RATIO
-    scale_contain: float = SCALE_CONTAIN
-    noise_factor: float = NOISE_FACTOR
-    light_ratio: float = LIGHT_RATIO
-    quadrant_jump: float = QUADRANT_JUMP
-    quadrant_hold: float = QUADRANT_HOLD
-    partial_ratio: float = PARTIAL_RATIO
-    scene_frames: int = SCENE_FRAMES
-    scene_iou: float = SCENE_IOU
-    target_hold: float = TARGET_HOLD
-    distractor_look: float = DISTRACTOR_LOOK
-    distractor_margin: float = DISTRACTOR_MARGIN
-    appearance_change: float = APPEARANCE_CHANGE
-    appearance_quadrant: float = APPEARANCE_QUADRANT
-    impoverished_ess: float = IMPOVERISHED_ESS
-    impoverished_frames: int = IMPOVERISHED_FRAMES
-    suspect_ess: float = SUSPECT_ESS
-    suspect_ess_frames: int = SUSPECT_ESS_FRAMES
-    suspect_mads: float = SUSPECT_MADS
-    suspect_window: int = SUSPECT_WINDOW
-    suspect_mode_mass: float = SUSPECT_MODE_MASS
-    suspect_mode_frames: int = SUSPECT_MODE_FRAMES
-    suspect_scale: float = SUSPECT_SCALE
-    match_before: int = MATCH_BEFORE
-    match_after: int = MATCH_AFTER
+    #: ---- per-frame evidence ------------------------------------------------------------------------
+    #: A frame is on track (label ``ok``) when its IoU with the ground truth is at least this.
+    on_track_iou: float = 0.5
+    #: A particle has reached the truth when its box has at least this IoU with the ground-truth box.
+    near_iou: float = 0.5
+    #: Templates of the cloud scored at the truth and the estimate (an evenly strided subset plus the top ones).
+    cloud_templates: int = 64
+    #: The heaviest templates always among them.
+    cloud_top: int = 20
+    #: Frames of evidence kept per tracker (bounds memory; a diagnosis looks back at most this far).
+    history: int = 300
+    #: Particles farther than this (target sizes) from the estimate count towards a second mode.
+    mode_distance: float = 0.75
+    #: ---- the causes --------------------------------------------------------------------------------
+    #: Frames before the drift onset (and after it) that the diagnosis reads.
+    look_before: int = 3
+    #: Frames before that window that define the target's baseline look.
+    baseline_frames: int = 8
+    #: fast motion: the truth's centre moved at least this many target sizes in one frame ...
+    fast_motion: float = 0.5
+    #: ... and (particle trackers) ended farther than this (target sizes) from the nearest particle.
+    fast_outside: float = 0.5
+    #: scale: the estimate's size over the truth's (or its inverse) at least this at the loss ...
+    scale_ratio: float = 1.6
+    #: ... with the smaller box at least this much inside the larger (the centre held, the size wrong).
+    scale_contain: float = 0.7
+    #: Changes of the target's look are measured against the baseline and compared with thresholds that are
+    #: at least NOISE_FACTOR times the baseline's own spread (real targets vary from frame to frame).
+    noise_factor: float = 2.0
+    #: illumination: a quadrant of the target at least this factor darker or brighter than its baseline.
+    light_ratio: float = 2.0
+    #: occlusion: on some frame, a quadrant's descriptor moved at least this far (sqrt(8 J)) from its baseline ...
+    quadrant_jump: float = 3.0
+    #: ... while another stayed within this of its own, or changed at most 1/PARTIAL_RATIO as much (an occluder
+    #: entering from one side); or (a static occluder hiding all of it) the region
+    #: shows what stood at that place before the target came: a descriptor within TARGET_HOLD of the scene's
+    #: there, and at most half as far from it as from the target's baseline.
+    quadrant_hold: float = 2.0
+    partial_ratio: float = 2.0
+    #: Frames kept to look up the scene at the target's place before it came (the most recent one where the
+    #: target's box overlapped today's by at most SCENE_IOU).
+    scene_frames: int = 30
+    scene_iou: float = 0.1
+    #: distractor: at the loss, the target still looks as before (d of the whole region, gain-normalised,
+    #: from its baseline, at most this) ...
+    target_hold: float = 2.5
+    #: ... and the region the tracker followed looks like the target too (at most this from the baseline) ...
+    distractor_look: float = 2.0
+    #: ... and the likelihood scores that region at least as well as the truth (d_eff margin).
+    distractor_margin: float = 0.0
+    #: appearance: on some frame, the target's look moved at least this far from its baseline ...
+    appearance_change: float = 2.5
+    #: ... and every quadrant at least this far: a change of the whole target, not of a part.
+    appearance_quadrant: float = 2.0
+    #: impoverishment: ESS/N below this on at least IMPOVERISHED_FRAMES frames of the window.
+    impoverished_ess: float = 0.02
+    impoverished_frames: int = 3
+    #: ---- suspects (no ground truth) ----------------------------------------------------------------
+    #: collapse: ESS/N below this ...
+    suspect_ess: float = 0.01
+    #: ... on this many consecutive frames.
+    suspect_ess_frames: int = 3
+    #: distance jump: the best particle distance above its running median by this many running MADs ...
+    suspect_mads: float = 6.0
+    #: ... over a running window of this many frames (and at least this many frames seen).
+    suspect_window: int = 30
+    #: second mode: at least this share of the weight sits MODE_DISTANCE or more from the estimate ...
+    suspect_mode_mass: float = 0.25
+    #: ... on this many consecutive frames.
+    suspect_mode_frames: int = 2
+    #: scale runaway: the estimate's scale changed by this factor within SUSPECT_WINDOW frames.
+    suspect_scale: float = 1.8
+    #: A suspect matches a loss when it is raised between MATCH_BEFORE frames before the drift began and
+    #: MATCH_AFTER frames after the loss.
+    match_before: int = 10
+    match_after: int = 5
     events: EventConfig = field(default_factory=lambda: EVENT_DEFAULTS)
 
     def __post_init__(self):
+        check(self, DIAGNOSIS_SPECS)
         if self.history < self.baseline_frames + self.look_before + 2:
-            raise ValueError("history must hold the baseline and the look-back frames")
-        if self.cloud_templates < 1 or self.cloud_top < 0:
-            raise ValueError("cloud_templates must be >= 1 and cloud_top >= 0")
+            raise ConfigError("DiagnosisConfig.history must hold the baseline and the look-back frames")
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+
+def _diagnosis_specs() -> dict[str, Spec]:
+    """Every threshold non-negative (IoUs and shares in [0, 1]; counts at least 1 where 0 means nothing)."""
+    unit = {"on_track_iou", "near_iou", "scene_iou", "impoverished_ess", "suspect_ess", "suspect_mode_mass",
+            "scale_contain"}
+    at_least_one = {"cloud_templates", "history", "suspect_window", "suspect_ess_frames", "suspect_mode_frames"}
+    specs: dict[str, Spec] = {}
+    for f in fields(DiagnosisConfig):
+        if f.name == "events":
+            specs[f.name] = Spec("config", cls=EventConfig)
+        elif f.type in ("int", int):
+            specs[f.name] = Spec("int", 1 if f.name in at_least_one else 0)
+        else:
+            specs[f.name] = Spec("float", 0, 1 if f.name in unit else None)
+    return specs
+
+
+#: Each field of :class:`DiagnosisConfig`: its type and range (:mod:`covviz.config`).
+DIAGNOSIS_SPECS: dict[str, Spec] = _diagnosis_specs()
 
 
 # --------------------------------------------------------------------------- #
@@ -327,12 +312,6 @@ def _containment(a: np.ndarray, b: np.ndarray) -> float:
     inter = max(0.0, x2 - x1) * max(0.0, y2 - y1)
     small = min(a[2] * a[3], b[2] * b[3])
     return float(inter / small) if small > 0 else float("nan")
-
-
-def _boxes_of_poses(poses: np.ndarray, base_wh) -> np.ndarray:
-    w = base_wh[0] * poses[:, 2]
-    h = base_wh[1] * poses[:, 2]
-    return np.stack([poses[:, 0] - w / 2, poses[:, 1] - h / 2, w, h], axis=1)
 
 
 def _cloud_subset(weights: np.ndarray, n: int, top: int) -> np.ndarray:
@@ -668,55 +647,90 @@ class _State:
         self.in_suspect: dict[str, bool] = {k: False for k in SUSPECTS}
 
 
-class Diagnoser:
+@dataclass(frozen=True, slots=True)
+class FrameNews:
+    """What the diagnosis found for one tracker on one frame (handed down the observer pipeline).
+
+    Attributes
+    ----------
+    evidence : FrameEvidence
+    events : tuple of Event
+        Events that this frame ended (storms, drift onsets, losses, recoveries).
+    diagnoses : tuple of Diagnosis
+        The diagnosis of each loss this frame confirmed.
+    suspects : tuple of Suspect
+        Label-free suspects raised on this frame.
+    """
+
+    evidence: FrameEvidence
+    events: tuple = ()
+    diagnoses: tuple = ()
+    suspects: tuple = ()
+
+
+class DiagnosisView:
+    """Read-only access to a running diagnosis, for the observers after it (results writer, recorder)."""
+
+    def __init__(self, diagnoser: Diagnoser) -> None:
+        self._d = diagnoser
+
+    @property
+    def config(self) -> DiagnosisConfig:
+        return self._d.config
+
+    def report(self, index: int = 0) -> dict:
+        """Events, diagnoses and suspects of tracker ``index`` so far, as plain data (for results JSON)."""
+        return self._d.report(index)
+
+
+class Diagnoser(Observer):
     """Observer computing the evidence, events, diagnoses and suspects of every tracker of a run.
 
-    Use it like any observer (:func:`covviz.runner.run_many`), or let the Rerun
-    logger drive it. After (or during) the run: :meth:`report` per tracker, and
-    :attr:`new` — what the last frame added, for the logger.
+    Put it in the observer pipeline before those that read it (the Rerun
+    recorder, the results writer): its ``on_start`` hands them a
+    :class:`DiagnosisView` (:attr:`Findings.diagnosis`), and each ``on_frame``
+    the :class:`FrameNews` of every tracker (:attr:`Findings.news`).
     """
 
     def __init__(self, config: DiagnosisConfig | None = None):
         self.config = config or DiagnosisConfig()
         self.states: list[_State] = []
-        self.new: list[dict] = []
+        self._view = DiagnosisView(self)
+        self._init_box: np.ndarray | None = None
 
     # ------------------------------------------------------------------ #
-    def on_start(self, sequence, trackers) -> None:
-        self.states = [_State(getattr(tr, "name", f"tracker{i}"), self.config) for i, tr in enumerate(trackers)]
+    def on_start(self, start: RunStart, found: Findings) -> Findings:
+        self.states = [_State(info.name, self.config) for info in start.trackers]
+        for s, info in zip(self.states, start.trackers):
+            s.model = info.model
+        self._init_box = np.asarray(start.init_box, dtype=np.float64)
+        return replace(found, diagnosis=self._view)
 
-    def on_frame(self, frame, records) -> None:
-        self.new = []
-        gray = None
+    def on_frame(self, frame, records, found: Findings) -> Findings:
+        news = []
+        gray = to_gray(frame.image)  # the frame's grey at full resolution (brightness), once for every tracker
         for s, rec in zip(self.states, records):
-            if isinstance(rec.model, ObservationModel):
-                s.model = rec.model
-            if s.probe is None and int(frame.index) == 0 and frame.gt is not None:
-                # Trackers without a covariance model get a probe built as the default tracker's.
-                s.probe = s.model if (s.model is not None) else ObservationModel.build(frame.image, frame.gt)
-            if gray is None:
-                gray = to_gray(frame.image)
+            if s.probe is None and int(frame.index) == 0:
+                # Trackers without a covariance model are probed with the default tracker's model.
+                s.probe = s.model if s.model is not None else ObservationModel.build(frame.image, self._init_box)
             ev = self._evidence(s, frame, rec, gray)
             if ev.label:
                 s.label_counts[ev.label] += 1
             s.latest = ev
             s.history.append(ev)
-            out = {"evidence": ev, "events": [], "diagnoses": [], "suspects": []}
+            events, diagnoses = [], []
             for e in s.detector.update(ev.frame, ev.iou if np.isfinite(ev.iou) else None,
                                        ev.ess_frac if np.isfinite(ev.ess_frac) else None):
                 s.events.append(e)
-                out["events"].append(e)
+                events.append(e)
                 if e.kind == "lost":
                     d = diagnose(list(s.history), e.frame, s.detector.drifts[-1], self.config)
                     s.diagnoses.append(d)
-                    out["diagnoses"].append(d)
-            for sp in self._suspects(s, ev, rec):
-                s.suspects.append(sp)
-                out["suspects"].append(sp)
-            self.new.append(out)
-
-    def on_end(self, results) -> None:
-        pass
+                    diagnoses.append(d)
+            suspects = self._suspects(s, ev, rec)
+            s.suspects.extend(suspects)
+            news.append(FrameNews(ev, tuple(events), tuple(diagnoses), tuple(suspects)))
+        return replace(found, diagnosis=self._view, news=tuple(news))
 
     # ------------------------------------------------------------------ #
     def _evidence(self, s: _State, frame, rec, gray: np.ndarray) -> FrameEvidence:
@@ -737,7 +751,7 @@ class Diagnoser:
                 size = s.model.base_size * float(rec.pose[2])
                 dist = np.hypot(*(rec.particle_poses[:, :2] - rec.pose[:2]).T) / max(size, 1e-9)
                 kw["mode_mass"] = float(w[dist >= cfg.mode_distance].sum())
-        d_lik = rec.extras.get("likelihood_distances") if rec.extras else None
+        d_lik = rec.likelihood.distances if rec.likelihood is not None else None
         if d_lik is not None and len(d_lik):
             kw["d_min"] = float(np.min(d_lik))
         if rec.pose is not None:
@@ -760,12 +774,12 @@ class Diagnoser:
         q, ring = _box_quadrant_means(gray, gt)
         kw["brightness"], kw["ring_brightness"] = q, ring
         if rec.particle_poses is not None and s.model is not None and len(rec.particle_poses):
-            pb = _boxes_of_poses(np.asarray(rec.particle_poses), s.model.base_wh)
+            pb = pose_to_box(np.asarray(rec.particle_poses), s.model.base_wh)
             kw["reach"] = float(iou(pb, np.broadcast_to(gt, pb.shape)).max())
             kw["nearest"] = float(np.hypot(*(rec.particle_poses[:, :2] - c_gt).T).min() / size)
         probe = s.probe
         if probe is not None:
-            pg = probe.prepare(frame.image)
+            pg = rec.inputs.gray if (probe is s.model and rec.inputs is not None) else probe.prepare(frame.image)
             truth_pose = box_to_pose(gt, probe.base_wh)
             poses = np.stack([truth_pose, box_to_pose(box, probe.base_wh)])
             C, Q = probe.quadrant_descriptors(pg, poses)
@@ -778,7 +792,7 @@ class Diagnoser:
             s.past.append((pg, gt))
         model = s.model
         if model is not None and rec.estimate_template is not None and rec.pose is not None:
-            mg = pg if model is probe else model.prepare(frame.image)
+            mg = rec.inputs.gray if rec.inputs is not None else model.prepare(frame.image)
             truth_pose = box_to_pose(gt, model.base_wh)
             est_pose = np.asarray(rec.pose, dtype=np.float64)
             cloud = [np.asarray(rec.estimate_template, dtype=np.float64)[None]]
@@ -786,7 +800,7 @@ class Diagnoser:
                 sub = _cloud_subset(w, cfg.cloud_templates, cfg.cloud_top)
                 cloud.append(np.asarray(rec.templates, dtype=np.float64)[sub])
             L = np.concatenate(cloud)
-            inputs = model.frame_inputs(frame.image, rec.extras)  # every term update() weighed by
+            inputs = rec.inputs.likelihood_kwargs() if rec.inputs is not None else {}  # what update() weighed by
             at_truth, parts_truth = model.template_scores(mg, truth_pose, L, **inputs, parts=True)
             at_est, parts_est = model.template_scores(mg, est_pose, L, **inputs, parts=True)
             kw["d_truth"], kw["d_est"] = float(at_truth[0]), float(at_est[0])

@@ -39,6 +39,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Protocol
 
+from covviz.runner import Observer
+
 __all__ = [
     "Executor",
     "Job",
@@ -157,13 +159,13 @@ class JobProcessDied(JobError):
 # --------------------------------------------------------------------------- #
 # the job itself
 # --------------------------------------------------------------------------- #
-class _FailureCounter:
+class _FailureCounter(Observer):
     """Observer: numbers (1-based) of the frames whose record says ``extras["failed"]`` (OpenCV trackers)."""
 
     def __init__(self) -> None:
         self.failed: list[int] = []
 
-    def on_frame(self, frame, records) -> None:
+    def on_frame(self, frame, records, found) -> None:
         from covviz.records import frame_number
 
         if records and records[0].extras.get("failed"):
@@ -182,13 +184,11 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
     frames on which the tracker reported a failure, the bench settings and the
     versions of this process.
     """
-    import platform
 
-    import numpy as np
 
-    from covviz import __version__
     from covviz.data.sequences import open_sequence
     from covviz.diagnosis.drift import Diagnoser
+    from covviz.experiments.results import versions
     from covviz.metrics import (
         IOU_THRESHOLDS,
         ON_TRACK_GAMMA,
@@ -227,7 +227,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
             "path": job.path,
             "executor": executor,
         },
-        "versions": {"covviz": __version__, "numpy": np.__version__, "python": platform.python_version()},
+        "versions": versions(),
     }
     return JobOutput(res, extra)
 

@@ -451,7 +451,9 @@ def summarize(results_dir: str | Path) -> Summary:
 
 def _failure_section(summary: Summary) -> list[str]:
     """Losses by diagnosed cause (overall and per sequence) and how far the label-free suspects can be trusted."""
-    from covviz.diagnosis.drift import CAUSES, MATCH_AFTER, MATCH_BEFORE
+    from covviz.diagnosis.drift import CAUSES, DiagnosisConfig
+
+    match_before, match_after = DiagnosisConfig().match_before, DiagnosisConfig().match_after
 
     if not summary.suspects:
         return []
@@ -491,7 +493,7 @@ def _failure_section(summary: Summary) -> list[str]:
             "A user's own video has no ground truth; the diagnosis then raises *suspects* from the filter's own "
             "numbers (weights collapsing, the best distance leaving its running range, a second mode of the weights, "
             f"the scale running away). Scored here against the losses: a suspect is right when it falls between "
-            f"{MATCH_BEFORE} frames before a drift began and {MATCH_AFTER} frames after the loss (precision), and a "
+            f"{match_before} frames before a drift began and {match_after} frames after the loss (precision), and a "
             "loss is found when at least one suspect falls in that window (recall)."
         ),
         "",

@@ -24,9 +24,12 @@ which names the run it belongs to (:func:`read_manifest`, :func:`write_manifest`
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -37,6 +40,7 @@ from covviz.data.sequences import read_boxes, write_boxes
 from covviz.errors import InputError, WriteError
 from covviz.metrics import evaluate, nothing_to_score
 from covviz.records import RunResult
+from covviz.runner import ProgressObserver
 
 __all__ = [
     "FORMAT",
@@ -52,8 +56,10 @@ __all__ = [
     "write_manifest",
 ]
 
-#: Format tag written into every JSON; a folder from another tool or version is refused.
-FORMAT = "covviz-result/1"
+#: Format tag written into every JSON (bumped whenever a result's fields change; ``docs/formats.md``).
+FORMAT = "covviz-result/2"
+#: Older tags :func:`load_result` still reads (their missing fields are absent from the dict).
+READABLE_FORMATS = ("covviz-result/1", FORMAT)
 #: File name of the manifest inside a bench's results folder.
 MANIFEST_NAME = "bench_manifest.json"
 #: Format tag of the manifest; a folder with another tag is refused.
@@ -99,6 +105,38 @@ def box_lines(boxes: np.ndarray) -> list[str]:
     return [",".join(f"{v:.2f}" for v in row) + "\n" for row in b]
 
 
+def boxes_sha256(boxes: np.ndarray) -> str:
+    """SHA-256 of the float64 boxes (little-endian, row-major): bit-identity at a glance (the ``.txt`` has 2 decimals)."""
+    b = np.ascontiguousarray(np.asarray(boxes, dtype="<f8").reshape(-1, 4))
+    return hashlib.sha256(b.tobytes()).hexdigest()
+
+
+def versions() -> dict:
+    """What produced a result: covviz, numpy, Python, and the compiled kernels' numba, llvmlite and CPU target.
+
+    Boxes are bit-identical for a seed on one machine (any thread count, any observers); the kernels
+    are compiled for the host CPU (``cpu_target``, or ``NUMBA_CPU_NAME`` when set), so another CPU
+    may differ in the last bits. ``cpu_target`` is None when this process ran no compiled kernel.
+    """
+    from importlib import metadata
+
+    out = {"covviz": __version__, "numpy": np.__version__, "python": platform.python_version()}
+    for name in ("numba", "llvmlite"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:  # pragma: no cover - numba is a dependency
+            out[name] = None
+    out["cpu_target"] = _cpu_target() if "numba" in sys.modules else None
+    return out
+
+
+@functools.lru_cache(maxsize=1)
+def _cpu_target() -> str:
+    from llvmlite import binding
+
+    return os.environ.get("NUMBA_CPU_NAME") or binding.get_host_cpu_name()
+
+
 def save_result(result: RunResult, out_dir: str | Path, extra: dict | None = None, *,
                 box_text: str | None = None) -> dict:
     """Write a run's boxes and JSON (metrics, times, config); return the JSON dict.
@@ -129,7 +167,8 @@ def save_result(result: RunResult, out_dir: str | Path, extra: dict | None = Non
         "metrics": metrics,
         "times": [round(float(t), 6) for t in result.times],
         "config": result.config,
-        "versions": {"covviz": __version__, "numpy": np.__version__, "python": platform.python_version()},
+        "boxes_sha256": boxes_sha256(result.boxes),
+        "versions": versions(),
         **(extra or {}),
     }
     text = json.dumps(doc, indent=1, default=_json_default, allow_nan=True)
@@ -145,16 +184,19 @@ def save_result(result: RunResult, out_dir: str | Path, extra: dict | None = Non
     return doc
 
 
-class ResultWriter:
+class ResultWriter(ProgressObserver):
     """Observer that keeps a run's results on disk while it goes (see the module docstring).
+
+    Put it after the drift diagnosis in the pipeline: the diagnosis so far
+    (:attr:`covviz.runner.Findings.diagnosis`) goes into every write as
+    ``diagnosis`` and ``diagnosis_config``.
 
     Parameters
     ----------
     out_dir : path
         Results folder (as :func:`save_result`).
-    extra : dict or callable, optional
-        Extra JSON fields (as :func:`save_result`), or ``extra(j) -> dict`` for
-        the ``j``-th run, asked at every write (e.g. the drift diagnosis so far).
+    extra : dict, optional
+        Extra JSON fields of every run (as :func:`save_result`).
     progress_seconds : float
         How often the runner hands over the results so far (``on_progress``).
 
@@ -180,13 +222,20 @@ class ResultWriter:
         self.saved_frames = 0
         self._failed = False
         self._lines: dict[int, list[str]] = {}  # per run: the formatted boxes so far (they never change)
+        self._diagnosis = None
+        self._replays: tuple = ()
 
-    def on_progress(self, results) -> None:
+    def on_start(self, start, found) -> None:
+        self._diagnosis = found.diagnosis
+
+    def on_progress(self, results, found) -> None:
         t0 = time.perf_counter()
         if self._save(results):
             self.progress_seconds = max(self.period, (time.perf_counter() - t0) / self.MAX_SHARE)
 
-    def on_end(self, results) -> None:
+    def on_end(self, results, found) -> None:
+        self._diagnosis = found.diagnosis or self._diagnosis
+        self._replays = found.counterfactual
         try:
             self.docs = self._save(results)
         except WriteError:
@@ -201,14 +250,26 @@ class ResultWriter:
         if results[0].interrupted and len(results[0].boxes) < 2:
             return []  # stopped before tracking anything: the one box is the one given
         try:
-            extra = self.extra if callable(self.extra) else (lambda j: self.extra)
-            docs = [save_result(r, self.out_dir, extra(j), box_text=self._box_text(j, r.boxes))
+            docs = [save_result(r, self.out_dir, self._extra(j), box_text=self._box_text(j, r.boxes))
                     for j, r in enumerate(results)]
         except WriteError:
             self._failed = True  # once is enough: the files of the last good write stay
             raise
         self.saved_frames = len(results[0].boxes)
         return docs
+
+    def _extra(self, j: int) -> dict:
+        """The JSON fields beyond the standard ones of run ``j``: the static extras and the diagnosis so far."""
+        out = dict(self.extra or {})
+        d = self._diagnosis
+        if d is not None:
+            out["diagnosis"] = report = d.report(j)
+            out["diagnosis_config"] = d.config.as_dict()
+            replays = self._replays[j] if j < len(self._replays) else {}
+            for diag in report["diagnoses"]:  # each loss's replays and verdict (the counterfactual issue)
+                if diag["lost_at"] in replays:
+                    diag.update(replays[diag["lost_at"]].as_dict())
+        return out
 
     def _box_text(self, j: int, boxes: np.ndarray) -> str:
         lines = self._lines.setdefault(j, [])
@@ -227,7 +288,7 @@ def load_result(json_path: str | Path) -> tuple[dict, np.ndarray]:
         raise ResultError(f"{js}: no such results file") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ResultError(f"{js}: corrupt results file ({exc.__class__.__name__}); delete it and re-run") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+    if not isinstance(doc, dict) or doc.get("format") not in READABLE_FORMATS:
         raise ResultError(f"{js}: not a covviz result (format {doc.get('format') if isinstance(doc, dict) else None!r})")
     txt = js.with_suffix(".txt")
     try:

@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from covviz.config import ConfigError, Spec, check, from_mapping
+
 __all__ = [
     "POSE",
     "SCALE",
@@ -78,20 +80,30 @@ class KinematicModel:
     max_rotation: float = np.pi / 2
 
     def __post_init__(self):
-        p = self.mode_probs
-        if len(p) != 2 or not np.all(np.isfinite(p)) or min(p) < 0 or abs(sum(p) - 1) > 1e-9:
-            raise ValueError(f"mode_probs must be two probabilities summing to 1, got {p}")
-        for name in ("pos_sigma", "vel_sigma", "scale_sigma", "rot_sigma"):
-            v = getattr(self, name)
-            if len(v) != 2 or not np.all(np.isfinite(v)) or min(v) < 0:
-                raise ValueError(f"{name} must be two non-negative numbers (mode 0, mode 1), got {v}")
-        if not self.max_rotation > 0:
-            raise ValueError(f"max_rotation must be positive (radians), got {self.max_rotation}")
-        if not 0 <= self.velocity_decay <= 1:
-            raise ValueError(f"velocity_decay must be in [0, 1], got {self.velocity_decay}")
+        check(self, KINEMATIC_SPECS)
+        if abs(sum(self.mode_probs) - 1) > 1e-9:
+            raise ConfigError(f"KinematicModel.mode_probs must be two probabilities summing to 1, got {self.mode_probs}")
         lo, hi = self.scale_range
         if not 0 < lo < 1 < hi:
-            raise ValueError(f"scale_range must satisfy 0 < lo < 1 < hi, got {self.scale_range}")
+            raise ConfigError(f"KinematicModel.scale_range must satisfy 0 < lo < 1 < hi, got {self.scale_range}")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> KinematicModel:
+        """The model of a JSON object of its fields (the rest default); unknown keys refused."""
+        return from_mapping(cls, d, KINEMATIC_SPECS)
+
+
+#: Each field of :class:`KinematicModel`: its type and range (:mod:`covviz.config`).
+KINEMATIC_SPECS: dict[str, Spec] = {
+    "mode_probs": Spec("pair", 0, 1),
+    "pos_sigma": Spec("pair", 0),
+    "vel_sigma": Spec("pair", 0),
+    "scale_sigma": Spec("pair", 0),
+    "rot_sigma": Spec("pair", 0),
+    "velocity_decay": Spec("float", 0, 1),
+    "scale_range": Spec("pair", 0, lo_open=True),
+    "max_rotation": Spec("float", 0, lo_open=True),
+}
 
 
 def propagate_kinematics(states: np.ndarray, model: KinematicModel, base_size: float, rng):

@@ -58,6 +58,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from covviz.config import ConfigError, Spec, check, from_mapping
 from covviz.model import fgbg
 from covviz.model.descriptor import covariance, quadrant_covariances
 from covviz.model.features import N_FEATURES, normalize_gradients, patch_features, pose_to_box, warp_patches
@@ -66,8 +67,10 @@ from covviz.model.particles import log_likelihood
 from covviz.model.spd import distance_jbld, distance_riemann_log, logdet
 
 __all__ = [
+    "OBSERVATION_SPECS",
     "OBSERVE_CHUNK",
     "Observation",
+    "ObservationConfig",
     "ObservationModel",
     "QuadrantState",
     "box_to_pose",
@@ -209,6 +212,104 @@ def _frozen(a: np.ndarray | None) -> np.ndarray | None:
     return a
 
 
+@dataclass(frozen=True)
+class ObservationConfig:
+    """How a covariance tracker observes and weighs: every observation field, with its default, once.
+
+    :class:`ObservationModel` is built from it (:meth:`ObservationModel.build`);
+    ``ManifoldConfig.observation`` holds the tracker's, and the drift diagnosis
+    probes trackers without a covariance model with the default one (the default
+    tracker's model). Each field's type and range is in :data:`OBSERVATION_SPECS`.
+
+    Attributes
+    ----------
+    patch_size : int
+        Side of the warped patch (32 in the paper).
+    eps : float
+        Shrinkage of each descriptor towards ``(tr C / d)·I``.
+    gain_normalize : bool
+        Divide each patch's intensity and derivative features by its mean
+        intensity (descriptors invariant to illumination gain). Not in the paper.
+    grad_normalize : float
+        Divide the derivative features by their patch mean to this power, 0 to 1
+        (:func:`covviz.model.features.normalize_gradients`): descriptors that do not
+        depend on how finely a region is sampled. Not in the paper.
+    grad_floor : float
+        Floor of the patch mean ``|grad I|`` that ``grad_normalize`` divides the first
+        derivatives by (0: only 1e-6): a textureless target keeps its small absolute
+        derivatives rather than amplified noise.
+    smooth_sigma : float
+        Gaussian pre-smoothing of the (downsampled) frame, pixels; 0: none.
+    antialias : bool
+        Downsample the frame (area averaging) when a patch sample spans
+        ``ANTIALIAS_MIN_PIXELS`` or more pixels.
+    quadrants : bool
+        The quadrant term in ``d_eff²`` (Porikli, Tuzel, Meer 2006). Not in the paper.
+    quadrant_weight : float
+    likelihood_sigma : float
+        σ of the likelihood ``exp(-d_eff² / 2σ²)``.
+    colour_weight : float
+        Weight of the foreground/background colour term (:mod:`covviz.model.fgbg`); 0: off.
+    colour_reliability : float
+        Exponent of the colour term's reliability gain; 0: a fixed weight.
+    context_weight : float
+        Weight of the context term (needs ``quadrants``); 0: off.
+    context_scale : float
+        The context term's reference: the initial box grown by this factor.
+    jit : bool
+        Observe with the compiled kernels (:mod:`covviz.model.kernels`) when numba is
+        installed and ``COVVIZ_NO_JIT`` is not set; ``False``: the numpy path.
+    """
+
+    patch_size: int = 32
+    eps: float = 1e-3
+    gain_normalize: bool = True
+    grad_normalize: float = 1.0
+    grad_floor: float = 0.3
+    smooth_sigma: float = 0.0
+    antialias: bool = True
+    quadrants: bool = True
+    quadrant_weight: float = 1.0
+    likelihood_sigma: float = 0.5
+    colour_weight: float = 10.0
+    colour_reliability: float = 0.0
+    context_weight: float = 0.0
+    context_scale: float = 1.25
+    jit: bool = True
+
+    def __post_init__(self):
+        check(self, OBSERVATION_SPECS)
+        if self.quadrants and self.patch_size % 2:
+            raise ConfigError(f"ObservationConfig.patch_size: quadrants need an even patch_size, got {self.patch_size}")
+        if self.context_weight > 0 and not self.quadrants:
+            raise ConfigError("ObservationConfig.context_weight needs quadrants=true (it compares quadrants)")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ObservationConfig:
+        """The config of a JSON object of its fields (the rest default); unknown keys refused."""
+        return from_mapping(cls, d, OBSERVATION_SPECS)
+
+
+#: Each field of :class:`ObservationConfig`: its type and range (:mod:`covviz.config`).
+OBSERVATION_SPECS: dict[str, Spec] = {
+    "patch_size": Spec("int", 4, 256),
+    "eps": Spec("float", 0, 1, lo_open=True),
+    "gain_normalize": Spec("bool"),
+    "grad_normalize": Spec("float", 0, 1),
+    "grad_floor": Spec("float", 0),
+    "smooth_sigma": Spec("float", 0, 20),
+    "antialias": Spec("bool"),
+    "quadrants": Spec("bool"),
+    "quadrant_weight": Spec("float", 0),
+    "likelihood_sigma": Spec("float", 0, lo_open=True),
+    "colour_weight": Spec("float", 0),
+    "colour_reliability": Spec("float", 0),
+    "context_weight": Spec("float", 0),
+    "context_scale": Spec("float", 1, lo_open=True),
+    "jit": Spec("bool"),
+}
+
+
 @dataclass(frozen=True, eq=False)
 class ObservationModel:
     """The frozen observation model of a covariance tracker (see the module docstring).
@@ -300,37 +401,19 @@ class ObservationModel:
 
     # ------------------------------------------------------------------ #
     @classmethod
-    def build(
-        cls,
-        frame: np.ndarray,
-        box,
-        *,
-        patch_size: int = 32,
-        eps: float = 1e-3,
-        gain_normalize: bool = True,
-        grad_normalize: float = 0.0,
-        grad_floor: float = 0.0,
-        smooth_sigma: float = 0.0,
-        antialias: bool = True,
-        quadrants: bool = True,
-        quadrant_weight: float = 1.0,
-        likelihood_sigma: float = 0.5,
-        colour_weight: float = 0.0,
-        colour_reliability: float = 0.0,
-        context_weight: float = 0.0,
-        context_scale: float = 1.25,
-        jit: bool = True,
-    ) -> ObservationModel:
+    def build(cls, frame: np.ndarray, box, config: ObservationConfig | None = None) -> ObservationModel:
         """The model of a tracker started on ``frame`` at ``box`` (``x, y, w, h``, 0-based pixels).
 
         Fixes the base size, the anti-aliasing step (frames are downsampled by
         an integer step when a patch sample spans ``ANTIALIAS_MIN_PIXELS`` or
         more pixels) and, with ``quadrants``, observes the quadrant references
-        at the box.
+        at the box. ``config`` defaults to :class:`ObservationConfig`'s defaults
+        (the default tracker's).
         """
+        c = config or ObservationConfig()
         x, y, w, h = check_init_box(box, np.shape(frame))
-        per_sample = min(w, h) / patch_size
-        step = int(per_sample // ANTIALIAS_DIVISOR) if (antialias and per_sample >= ANTIALIAS_MIN_PIXELS) else 1
+        per_sample = min(w, h) / c.patch_size
+        step = int(per_sample // ANTIALIAS_DIVISOR) if (c.antialias and per_sample >= ANTIALIAS_MIN_PIXELS) else 1
         H, W = np.shape(frame)[:2]
         step_xy = (1.0, 1.0)
         if step > 1:
@@ -340,52 +423,27 @@ class ObservationModel:
             base_wh=(w, h),
             step=step,
             step_xy=step_xy,
-            patch_size=patch_size,
-            eps=eps,
-            gain_normalize=gain_normalize,
-            grad_normalize=grad_normalize,
-            grad_floor=grad_floor,
-            smooth_sigma=smooth_sigma,
-            likelihood_sigma=likelihood_sigma,
-            quadrant_weight=quadrant_weight,
-            colour_weight=colour_weight,
-            colour_reliability=colour_reliability,
-            jit=jit,
+            patch_size=c.patch_size,
+            eps=c.eps,
+            gain_normalize=c.gain_normalize,
+            grad_normalize=c.grad_normalize,
+            grad_floor=c.grad_floor,
+            smooth_sigma=c.smooth_sigma,
+            likelihood_sigma=c.likelihood_sigma,
+            quadrant_weight=c.quadrant_weight,
+            colour_weight=c.colour_weight,
+            colour_reliability=c.colour_reliability,
+            jit=c.jit,
         )
-        if quadrants:
-            if patch_size % 2:
-                raise ValueError(f"quadrants need an even patch_size, got {patch_size}")
+        if c.quadrants:
             g0 = model.prepare(frame)
             Q0 = model._observe_quadrants(g0, np.array([[x + w / 2, y + h / 2, 1.0, 0.0]]))[0]
             extra = {}
-            if context_weight > 0:
-                Qc = model._observe_quadrants(g0, np.array([[x + w / 2, y + h / 2, context_scale, 0.0]]))[0]
-                extra = {"context_reference": Qc, "context_logdet": logdet(Qc), "context_weight": context_weight}
+            if c.context_weight > 0:
+                Qc = model._observe_quadrants(g0, np.array([[x + w / 2, y + h / 2, c.context_scale, 0.0]]))[0]
+                extra = {"context_reference": Qc, "context_logdet": logdet(Qc), "context_weight": c.context_weight}
             model = cls(**{**model._fields(), "quadrant_reference": Q0, "quadrant_logdet": logdet(Q0), **extra})
         return model
-
-    @classmethod
-    def from_config(cls, frame: np.ndarray, box, config) -> ObservationModel:
-        """:meth:`build` with the observation fields of a tracker config (e.g. ``ManifoldConfig``)."""
-        return cls.build(
-            frame,
-            box,
-            patch_size=config.patch_size,
-            eps=config.eps,
-            gain_normalize=config.gain_normalize,
-            grad_normalize=float(getattr(config, "grad_normalize", 0.0)),
-            grad_floor=float(getattr(config, "grad_floor", 0.0)),
-            smooth_sigma=config.smooth_sigma,
-            antialias=config.antialias,
-            quadrants=config.quadrants,
-            quadrant_weight=config.quadrant_weight,
-            likelihood_sigma=config.likelihood_sigma,
-            colour_weight=getattr(config, "colour_weight", 0.0),
-            colour_reliability=getattr(config, "colour_reliability", 0.0),
-            context_weight=getattr(config, "context_weight", 0.0),
-            context_scale=getattr(config, "context_scale", 1.25),
-            jit=getattr(config, "jit", True),
-        )
 
     def _fields(self) -> dict:
         return {name: getattr(self, name) for name in self.__dataclass_fields__}
@@ -465,29 +523,6 @@ class ObservationModel:
             g = cv2.GaussianBlur(g, (0, 0), self.smooth_sigma)
         return g
 
-    def frame_inputs(self, frame: np.ndarray, extras: dict | None) -> dict:
-        """What the likelihood of ``frame`` depends on besides a pose and a template, from a record's ``extras``.
-
-        The colour map of the frame (``extras["colour_map"]``, the one the
-        tracker weighed this frame with; else computed from
-        ``extras["colour_state"]``) and the quadrant state
-        (``extras["quadrant_state"]``), as keyword arguments of
-        :meth:`likelihood_distances`, :meth:`template_scores` and
-        :meth:`pose_search`: with them those say exactly what ``update()``
-        weighed by, all terms included. ``{}`` for a record without them (the
-        paper's likelihood, another tracker).
-        """
-        extras = extras or {}
-        out = {}
-        cmap = extras.get("colour_map") if self.colour else None
-        if cmap is None:
-            cmap = self.colour_map(frame, extras.get("colour_state"))
-        if cmap is not None:
-            out["colour"] = cmap
-        if extras.get("quadrant_state") is not None and self.quadrants:
-            out["quadrant_state"] = extras["quadrant_state"]
-        return out
-
     def colour_map(self, frame: np.ndarray, state: fgbg.ColourModel | None) -> fgbg.ColourMap | None:
         """The foreground probability of a (raw, colour) ``frame`` given the colour state; None without the term."""
         if not self.colour or state is None:
@@ -526,9 +561,6 @@ class ObservationModel:
         if self.compiled:
             return _kernels().quadrant_distances_fast(Q, ref, ld)
         return distance_jbld(ref, Q, logdet_a=ld)
-
-    def _quadrant_distances(self, Q: np.ndarray) -> np.ndarray:
-        return self.quadrant_distances(Q)
 
     def _chunk(self, gray: np.ndarray, poses: np.ndarray, templates: np.ndarray | None, qstate=None):
         """One chunk: descriptors (and distances), with the seconds of its four stages."""

@@ -7,6 +7,7 @@ that, for example, the manifold tracker does not pay for OpenCV's trackers.
 from __future__ import annotations
 
 import importlib
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -14,33 +15,58 @@ from covviz.trackers.base import IdentityTracker, Tracker
 
 __all__ = [
     "CONFIGURABLE",
+    "REGISTRY",
     "STOCHASTIC",
     "TRACKERS",
     "IdentityTracker",
     "Tracker",
+    "TrackerEntry",
     "make_tracker",
     "tracker_names",
     "tracker_rng",
 ]
 
-#: name -> "module:factory"; each factory takes (n_particles=None, rng=None), those of
-#: :data:`CONFIGURABLE` also config=None.
-TRACKERS = {
-    "manifold": "covviz.trackers.manifold:make",
-    "manifold-paper": "covviz.trackers.manifold:make_paper",
-    "ipca": "covviz.trackers.ipca:make",
-    "identity": "covviz.trackers.base:make_identity",
-    "csrt": "covviz.trackers.opencv:make_csrt",
-    "kcf": "covviz.trackers.opencv:make_kcf",
-    "mil": "covviz.trackers.opencv:make_mil",
-    "mosse": "covviz.trackers.opencv:make_mosse",
-    "medianflow": "covviz.trackers.opencv:make_medianflow",
-    "tld": "covviz.trackers.opencv:make_tld",
+@dataclass(frozen=True)
+class TrackerEntry:
+    """One tracker of the registry and its properties.
+
+    Attributes
+    ----------
+    factory : str
+        ``"module:function"``; the function takes ``(n_particles=None, rng=None)``,
+        and ``config=None`` when ``configurable``.
+    stochastic : bool
+        Its output depends on the seed (a bench runs several seeds).
+    configurable : bool
+        Its factory takes a ``ManifoldConfig`` (``--config``).
+    snapshots : bool
+        ``snapshot()``/``restore()`` work: its losses can be replayed (else a restart at the truth).
+    """
+
+    factory: str
+    stochastic: bool = False
+    configurable: bool = False
+    snapshots: bool = False
+
+
+#: Every tracker covviz knows, by name.
+REGISTRY: dict[str, TrackerEntry] = {
+    "manifold": TrackerEntry("covviz.trackers.manifold:make", stochastic=True, configurable=True, snapshots=True),
+    "manifold-paper": TrackerEntry("covviz.trackers.manifold:make_paper", stochastic=True, configurable=True,
+                                   snapshots=True),
+    "ipca": TrackerEntry("covviz.trackers.ipca:make", stochastic=True, snapshots=True),
+    "identity": TrackerEntry("covviz.trackers.base:make_identity", snapshots=True),
+    "csrt": TrackerEntry("covviz.trackers.opencv:make_csrt"),
+    "kcf": TrackerEntry("covviz.trackers.opencv:make_kcf"),
+    "mil": TrackerEntry("covviz.trackers.opencv:make_mil"),
+    "mosse": TrackerEntry("covviz.trackers.opencv:make_mosse"),
+    "medianflow": TrackerEntry("covviz.trackers.opencv:make_medianflow"),
+    "tld": TrackerEntry("covviz.trackers.opencv:make_tld"),
 }
-#: Trackers whose output depends on the seed (run several seeds of these).
-STOCHASTIC = frozenset({"manifold", "manifold-paper", "ipca"})
-#: Trackers whose factory takes a ``config`` (a ManifoldConfig: ``covviz track|bench --config``).
-CONFIGURABLE = frozenset({"manifold", "manifold-paper"})
+#: Views of :data:`REGISTRY`: the names, and those with each property.
+TRACKERS = {name: e.factory for name, e in REGISTRY.items()}
+STOCHASTIC = frozenset(name for name, e in REGISTRY.items() if e.stochastic)
+CONFIGURABLE = frozenset(name for name, e in REGISTRY.items() if e.configurable)
 
 
 def tracker_names(names) -> list[str]:

@@ -89,6 +89,7 @@ References
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 import time
@@ -101,6 +102,7 @@ from covviz.model.features import REMAP_MAX_ROWS, remap_stacked
 from covviz.model.image import check_init_box, to_gray
 from covviz.model.particles import effective_sample_size, normalize_log_weights
 from covviz.records import FrameRecord
+from covviz.trackers.base import Intervention
 
 __all__ = [
     "GRIDS",
@@ -578,6 +580,9 @@ class IPCATracker:
     """
 
     name = "ipca"
+    snapshots = True
+    particle_filter = True
+    observation_model = None
 
     def __init__(self, config: IPCAConfig | None = None, rng=None) -> None:
         if config is None:
@@ -592,9 +597,37 @@ class IPCATracker:
         self._buffer: list[np.ndarray] = []
         self._scale0 = 1.0
         self._index = 0
+        #: An experiment's hand in update() (covviz.diagnosis.counterfactual); None in normal runs.
+        self.intervention: Intervention | None = None
 
     def config_dict(self) -> dict:
         return self.config.as_dict()
+
+    def snapshot(self) -> IPCAState:
+        """What ``update()`` changes: the particles, the appearance model and its batch, the rng, the frame."""
+        if self._states is None:
+            raise RuntimeError("call init(frame, box) before snapshot()")
+        return IPCAState(
+            config=self.config,
+            states=_ro(self._states),
+            model=self.model,
+            buffer=tuple(_ro(b) for b in self._buffer),
+            scale0=self._scale0,
+            rng_state=copy.deepcopy(self._rng.bit_generator.state),
+            index=self._index,
+        )
+
+    def restore(self, state: IPCAState) -> None:
+        """Put a :meth:`snapshot` back: the next ``update()`` continues from it, bit for bit."""
+        if state.config != self.config:
+            raise ValueError("this state was taken from a tracker of another config; make one with state.config")
+        self._states = state.states
+        self.model = state.model
+        self._buffer = list(state.buffer)
+        self._scale0 = state.scale0
+        self._rng.bit_generator.state = copy.deepcopy(state.rng_state)
+        self._index = state.index
+        self.last_record = None
 
     # -- helpers ----------------------------------------------------------- #
     def _poses(self, states: np.ndarray) -> np.ndarray:
@@ -663,14 +696,30 @@ class IPCATracker:
         states = diffuse(self._states, cfg.affsig, self._rng)
         t1 = time.perf_counter()
         gray = to_gray(frame)
+        hook = self.intervention
+        moved = None if hook is None else hook.to_truth(self._index, len(states))
+        if moved is not None:  # the search fix: some particles at the truth's affine state
+            states = states.copy()
+            states[moved[0]] = box_to_state(np.asarray(moved[1], dtype=np.float64), cfg.patch_size)[0]
         patches = sample_templates(gray, states, cfg.patch_size, cfg.grid)
         t2 = time.perf_counter()
         flat = patches.reshape(len(patches), -1)
         err = reconstruction_errors(flat, self.model.mean, self.model.basis)
         logw = normalize_log_weights(-err / cfg.condenssig)
         best = int(np.argmax(logw))
+        if hook is not None:  # the estimate fix: another particle among those holding 90% of the weight
+            w = np.exp(logw - logw.max())
+            order = np.argsort(-w, kind="stable")
+            cand = order[: int(np.searchsorted(np.cumsum(w[order]) / w.sum(), 0.9)) + 1]
+            j = hook.estimate(self._index, state_to_box(states[cand], cfg.patch_size))
+            best = best if j is None else int(cand[j])
+        look = None if hook is None else hook.appearance(self._index)
         t3 = time.perf_counter()
-        self._buffer_and_update(patches[best].copy())
+        if look is not None:  # the model fix: its update is fed the truth's patch
+            truth = box_to_state(np.asarray(look, dtype=np.float64), cfg.patch_size)
+            self._buffer_and_update(sample_templates(gray, truth, cfg.patch_size, cfg.grid)[0].copy())
+        else:
+            self._buffer_and_update(patches[best].copy())
         t4 = time.perf_counter()
         idx = resample_indices(logw, self._rng)
         self._states = states[idx]
@@ -702,6 +751,25 @@ class IPCATracker:
             extras=self._extras(states[best]),
         )
         return box.copy()
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class IPCAState:
+    """An :class:`IPCATracker`'s state between two frames (:meth:`IPCATracker.snapshot`)."""
+
+    config: IPCAConfig
+    states: np.ndarray
+    model: AppearanceModel
+    buffer: tuple
+    scale0: float
+    rng_state: dict
+    index: int
+
+
+def _ro(a: np.ndarray) -> np.ndarray:
+    a = np.array(a)
+    a.flags.writeable = False
+    return a
 
 
 def make(n_particles: int | None = None, rng=None) -> IPCATracker:

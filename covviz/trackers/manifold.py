@@ -53,14 +53,16 @@ Reference: the paper in ``shared/paper.tex``, sections 2–3.
 
 from __future__ import annotations
 
-import json
+import copy
+import dataclasses
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Self
 
 import numpy as np
 
+from covviz.config import ConfigError, Spec, as_plain, check, from_mapping
 from covviz.model import fgbg
 from covviz.model.dynamics import (
     POSE,
@@ -76,7 +78,14 @@ from covviz.model.dynamics import (
 )
 from covviz.model.features import N_FEATURES, pose_corners, pose_to_box
 from covviz.model.image import check_init_box
-from covviz.model.observation import ObservationModel, QuadrantState, update_quadrant_state
+from covviz.model.observation import (
+    OBSERVATION_SPECS,
+    ObservationConfig,
+    ObservationModel,
+    QuadrantState,
+    box_to_pose,
+    update_quadrant_state,
+)
 from covviz.model.particles import (
     ParticleSet,
     effective_sample_size,
@@ -85,26 +94,24 @@ from covviz.model.particles import (
     normalize_log_weights,
     systematic_resample,
 )
-from covviz.model.spd import logm
-from covviz.records import FrameRecord
+from covviz.model.spd import logdet, logm
+from covviz.records import FrameInputs, FrameRecord, Likelihood, PoseSearch
+from covviz.trackers.base import Intervention
 
-__all__ = ["ManifoldConfig", "ManifoldTracker"]
+__all__ = ["MANIFOLD_SPECS", "ManifoldConfig", "ManifoldState", "ManifoldTracker"]
 
 
 @dataclass(frozen=True)
 class ManifoldConfig:
-    """Every parameter of :class:`ManifoldTracker`, with its default.
+    """Every parameter of :class:`ManifoldTracker`, with its default (observation fields in ``observation``).
 
     How the defaults were chosen (sweeps, seeds, what moved the score) is in
-    ``docs/tuning.md``.
+    ``docs/tuning.md``; each field's type and range is in :data:`MANIFOLD_SPECS`.
 
     Attributes
     ----------
     n_particles : int
         Particles (each with its own template).
-    likelihood_sigma : float
-        σ of ``exp(-d²/2σ²)``. A particle's distance to its observation is
-        ~0.8–1.5 on target and ~2–5 on background.
     template_sigma : float
         Std of every entry of the symmetric log-space step ``W`` of the template
         walk (``σ_ij``, the same for all ``i, j``), unless ``template_sigma_matrix``
@@ -113,63 +120,14 @@ class ManifoldConfig:
         A full symmetric 9×9 matrix of ``σ_ij``.
     kinematics : KinematicModel
         Kinematic model and its two-mode noise.
-    patch_size : int
-        Side of the warped patch (32 in the paper).
-    eps : float
-        Shrinkage of each descriptor towards ``(tr C / d)·I``.
     resample_threshold : float
         Resample when ESS < threshold · n (1.0: every frame, as plain SIR).
     resampling : {"systematic", "multinomial"}
-    antialias : bool
-        Downsample the frame (area averaging) when the target is more than
-        ~2 pixels per patch sample, so that the 32×32 warp does not alias.
     threads : int
         Threads that share the particles' descriptors and distances (2: the
         cores of the machines we target). Results never depend on it.
-    smooth_sigma : float
-        Gaussian pre-smoothing of the frame (pixels of the possibly
-        downsampled frame) before warping: tames sensor noise in the
-        derivative features. 0 disables it.
-    gain_normalize : bool
-        Divide each patch's intensity and derivative features by its mean
-        intensity: descriptors become invariant to illumination gain
-        (see :func:`covviz.model.features.patch_features`). Not in the paper.
-    grad_normalize : float
-        Divide each patch's derivative features by their patch mean to this
-        power, 0 to 1 (:func:`covviz.model.features.normalize_gradients`): the descriptor no
-        longer depends on how finely the region is sampled, which otherwise
-        ties the box to the initial size (a shrinking target's derivatives
-        per sample shrink with it). Not in the paper.
-    grad_floor : float
-        Floor of the patch mean ``|grad I|`` that ``grad_normalize`` divides
-        the first derivatives by (the second derivatives' mean is floored at
-        1e-6 only). Intensities are gain-normalised, so the level compares
-        across sequences: the ground-truth boxes' mean ``|grad I|`` is
-        ~0.2-0.3 on the textureless VOT15_bag, 0.25-0.45 on Surfer and
-        0.33-1.3 on the other dev sequences. A textured target is fully
-        normalised, a textureless one keeps its small absolute derivatives
-        rather than amplified noise. 0: no floor (only 1e-6). Non-negative.
-    quadrants : bool
-        Add the quadrant term to each particle's distance (see the module
-        docstring). Not in the paper; ``False`` gives the paper's likelihood.
-    quadrant_weight : float
-        Weight of the quadrant term in ``d²``.
-    colour_weight : float
-        Weight of the foreground/background colour term in ``d²``
-        (:mod:`covviz.model.fgbg`; not in the paper): how much of the box's colour
-        is the target's rather than its surroundings'. 0 turns it off.
     colour_rate : float
         Learning rate of the colour histograms (Staple's 0.04).
-    colour_reliability : float
-        Scale the colour term by ``(contrast / 0.5)**colour_reliability``,
-        ``contrast`` the total-variation distance of the two histograms (how
-        well colour tells target from background); 0: a fixed weight.
-    context_weight : float
-        Weight of the context term (needs ``quadrants``): how much more a
-        box's quadrants resemble those of the initial box grown by
-        ``context_scale`` than the references
-        (:meth:`~covviz.model.observation.ObservationModel.context_terms`). 0: off.
-    context_scale : float
     quadrant_reliability : float
         Rate of the running mean of each quadrant's mismatch at the estimate;
         > 0 weighs the quadrants by their reliability (the inverse of that
@@ -216,33 +174,22 @@ class ManifoldConfig:
     search_pull : float
         And every particle's scale and angle move by this fraction of the
         estimate's move (1: the whole cloud follows).
-    jit : bool
-        Observe with the compiled kernels (:mod:`covviz.model.kernels`) when numba is
-        installed and ``COVVIZ_NO_JIT`` is not set; ``False``: the numpy path.
+    observation : ObservationConfig
+        How the tracker observes and weighs (patch size, features, the
+        likelihood's σ and terms, the compiled kernels):
+        :class:`~covviz.model.observation.ObservationConfig`. Its fields may
+        also be given flat in :meth:`from_dict` and :meth:`replace`
+        (``{"quadrants": false}``).
     """
 
     n_particles: int = 600
-    likelihood_sigma: float = 0.5
     template_sigma: float = 0.005
     template_sigma_matrix: tuple | None = None
     kinematics: KinematicModel = field(default_factory=KinematicModel)
-    patch_size: int = 32
-    eps: float = 1e-3
     resample_threshold: float = 1.0
     resampling: str = "systematic"
-    antialias: bool = True
     threads: int = 2
-    smooth_sigma: float = 0.0
-    gain_normalize: bool = True
-    grad_normalize: float = 1.0
-    grad_floor: float = 0.3
-    quadrants: bool = True
-    quadrant_weight: float = 1.0
-    colour_weight: float = 10.0
     colour_rate: float = 0.04
-    colour_reliability: float = 0.0
-    context_weight: float = 0.0
-    context_scale: float = 1.25
     quadrant_reliability: float = 0.0
     quadrant_ref_rate: float = 0.0
     quadrant_ref_gate: float = 1.0
@@ -258,93 +205,16 @@ class ManifoldConfig:
     rotation_step: float = 0.03
     search_blend: float = 1.0
     search_pull: float = 1.0
-    jit: bool = True
+    observation: ObservationConfig = field(default_factory=ObservationConfig)
 
     def __post_init__(self):
-        for name in (
-            "likelihood_sigma",
-            "template_sigma",
-            "eps",
-            "smooth_sigma",
-            "resample_threshold",
-            "quadrant_weight",
-            "colour_weight",
-            "colour_rate",
-            "colour_reliability",
-            "grad_normalize",
-            "grad_floor",
-            "context_weight",
-            "context_scale",
-            "quadrant_reliability",
-            "quadrant_ref_rate",
-            "quadrant_ref_gate",
-            "anchor_pull",
-            "anchor_rate",
-            "anchor_gate",
-            "refine_fraction",
-            "refine_noise",
-            "scale_step",
-            "rotation_step",
-            "search_blend",
-            "search_pull",
-        ):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not np.isfinite(v):
-                raise ValueError(f"{name} must be a finite number, got {v!r}")
-        # Every bad config value is a ValueError (one kind for callers and the CLI to report).
-        if not isinstance(self.n_particles, (int, np.integer)):
-            raise ValueError(f"n_particles must be an integer, got {self.n_particles!r}")  # noqa: TRY004
-        if self.n_particles < 2:
-            raise ValueError(f"n_particles must be at least 2, got {self.n_particles}")
-        if not self.likelihood_sigma > 0:
-            raise ValueError(f"likelihood_sigma must be positive, got {self.likelihood_sigma}")
-        if self.template_sigma < 0:
-            raise ValueError(f"template_sigma must be non-negative, got {self.template_sigma}")
+        check(self, MANIFOLD_SPECS)
         if self.template_sigma_matrix is not None:
             m = np.asarray(self.template_sigma_matrix, dtype=float)
-            if m.shape != (N_FEATURES, N_FEATURES) or not np.allclose(m, m.T) or (m < 0).any():
-                raise ValueError("template_sigma_matrix must be a symmetric non-negative 9x9 matrix")
-        if not isinstance(self.threads, (int, np.integer)) or self.threads < 1:
-            raise ValueError(f"threads must be a positive integer, got {self.threads!r}")
-        if self.patch_size < 4:
-            raise ValueError(f"patch_size must be at least 4, got {self.patch_size}")
-        if not self.eps > 0:
-            raise ValueError(f"eps must be positive (it keeps descriptors SPD), got {self.eps}")
-        if not 0 <= self.resample_threshold <= 1:
-            raise ValueError(f"resample_threshold must be in [0, 1], got {self.resample_threshold}")
-        if self.quadrant_weight < 0:
-            raise ValueError(f"quadrant_weight must be non-negative, got {self.quadrant_weight}")
-        if self.colour_weight < 0:
-            raise ValueError(f"colour_weight must be non-negative, got {self.colour_weight}")
-        for name in ("grad_normalize", "colour_rate", "quadrant_reliability", "quadrant_ref_rate", "anchor_pull", "anchor_rate",
-                     "search_blend", "search_pull"):
-            if not 0 <= getattr(self, name) <= 1:
-                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
-        if not 0 <= self.refine_fraction < 1:
-            raise ValueError(f"refine_fraction must be in [0, 1), got {self.refine_fraction}")
-        for name in ("grad_floor", "colour_reliability", "context_weight", "quadrant_ref_gate", "anchor_gate", "refine_noise", "rotation_step"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be non-negative, got {getattr(self, name)}")
-        if not self.context_scale > 1:
-            raise ValueError(f"context_scale must be above 1 (the box grown), got {self.context_scale}")
-        if not self.scale_step > 1:
-            raise ValueError(f"scale_step must be above 1, got {self.scale_step}")
-        for name in ("scale_steps", "rotation_steps", "refine_top"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or v < 0:
-                raise ValueError(f"{name} must be a non-negative integer, got {v!r}")
-        if self.refine_top < 1:
-            raise ValueError(f"refine_top must be at least 1, got {self.refine_top}")
-        if self.context_weight > 0 and not self.quadrants:
-            raise ValueError("context_weight needs quadrants=True (it compares quadrants)")
-        if self.quadrant_reliability > 0 and not self.quadrants:
-            raise ValueError("quadrant_reliability needs quadrants=True")
-        if self.quadrants and self.patch_size % 2:
-            raise ValueError(f"quadrants need an even patch_size, got {self.patch_size}")
-        if self.smooth_sigma < 0:
-            raise ValueError(f"smooth_sigma must be non-negative, got {self.smooth_sigma}")
-        if self.resampling not in ("systematic", "multinomial"):
-            raise ValueError(f"resampling must be 'systematic' or 'multinomial', got {self.resampling!r}")
+            if m.shape != (N_FEATURES, N_FEATURES) or not np.allclose(m, m.T):
+                raise ConfigError("ManifoldConfig.template_sigma_matrix must be a symmetric non-negative 9x9 matrix")
+        if self.quadrant_reliability > 0 and not self.observation.quadrants:
+            raise ConfigError("ManifoldConfig.quadrant_reliability needs observation.quadrants=true")
 
     @property
     def sigma_matrix(self) -> np.ndarray:
@@ -354,35 +224,61 @@ class ManifoldConfig:
         return np.full((N_FEATURES, N_FEATURES), self.template_sigma)
 
     def as_dict(self) -> dict:
-        """The fields as a JSON-serialisable dict (nested dataclasses as dicts, tuples as lists)."""
-        return json.loads(json.dumps(asdict(self), default=list))
+        """The fields as a JSON-serialisable dict (nested configs as dicts, tuples as lists)."""
+        return as_plain(self)
 
     @classmethod
     def from_dict(cls, d: dict) -> ManifoldConfig:
         """The config of :meth:`as_dict`'s output (or any subset of its fields; the rest default).
 
+        Observation fields may be given flat (``{"quadrants": false}``) or inside
+        ``"observation"``, not both.
+
         Raises
         ------
-        ValueError
-            On an unknown field or a value the config refuses (the message names it).
+        covviz.config.ConfigError
+            On an unknown field or a value of the wrong type or out of range (the message names it).
         """
-        if not isinstance(d, dict):
-            raise ValueError(f"a ManifoldConfig must be a JSON object of fields, got {type(d).__name__}")  # noqa: TRY004 - config errors are ValueError
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ValueError(f"unknown ManifoldConfig field(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}")
-        kw = dict(d)
-        if isinstance(kw.get("kinematics"), dict):
-            km = kw["kinematics"]
-            known = {f.name for f in fields(KinematicModel)}
-            bad = sorted(set(km) - known)
-            if bad:
-                raise ValueError(f"unknown kinematics field(s) {', '.join(bad)}; known: {', '.join(sorted(known))}")
-            kw["kinematics"] = KinematicModel(**{k: tuple(v) if isinstance(v, list) else v for k, v in km.items()})
-        if isinstance(kw.get("template_sigma_matrix"), list):
-            kw["template_sigma_matrix"] = tuple(tuple(r) for r in kw["template_sigma_matrix"])
-        return cls(**kw)
+        return from_mapping(cls, d, MANIFOLD_SPECS, aliases=OBSERVATION_ALIASES)
+
+    def replace(self, **changes) -> ManifoldConfig:
+        """A copy with ``changes``; observation fields by their flat names (``replace(quadrants=False)``)."""
+        obs = {k: changes.pop(k) for k in list(changes) if k in OBSERVATION_ALIASES}
+        if obs:
+            changes["observation"] = dataclasses.replace(changes.get("observation", self.observation), **obs)
+        return dataclasses.replace(self, **changes)
+
+
+#: Flat names of the observation fields (``{"quadrants": false}`` sets ``observation.quadrants``).
+OBSERVATION_ALIASES = {name: "observation" for name in OBSERVATION_SPECS}
+
+#: Each field of :class:`ManifoldConfig`: its type and range (:mod:`covviz.config`).
+MANIFOLD_SPECS: dict[str, Spec] = {
+    "n_particles": Spec("int", 2, 1_000_000),
+    "template_sigma": Spec("float", 0, 1),
+    "template_sigma_matrix": Spec("matrix", 0, optional=True),
+    "kinematics": Spec("config", cls=KinematicModel),
+    "resample_threshold": Spec("float", 0, 1),
+    "resampling": Spec("str", choices=("systematic", "multinomial")),
+    "threads": Spec("int", 1, 64),
+    "colour_rate": Spec("float", 0, 1),
+    "quadrant_reliability": Spec("float", 0, 1),
+    "quadrant_ref_rate": Spec("float", 0, 1),
+    "quadrant_ref_gate": Spec("float", 0),
+    "anchor_pull": Spec("float", 0, 1),
+    "anchor_rate": Spec("float", 0, 1),
+    "anchor_gate": Spec("float", 0),
+    "refine_fraction": Spec("float", 0, 1, hi_open=True),
+    "refine_top": Spec("int", 1),
+    "refine_noise": Spec("float", 0),
+    "scale_steps": Spec("int", 0, 50),
+    "scale_step": Spec("float", 1, 2, lo_open=True),
+    "rotation_steps": Spec("int", 0, 50),
+    "rotation_step": Spec("float", 0, 1),
+    "search_blend": Spec("float", 0, 1),
+    "search_pull": Spec("float", 0, 1),
+    "observation": Spec("config", cls=ObservationConfig),
+}
 
 
 # --------------------------------------------------------------------------- #
@@ -394,22 +290,24 @@ class ManifoldConfig:
 #: position noise). Every range holds the default, which a new study runs first; the
 #: ranges span what docs/tuning.md found to matter, about 3× either side of the default.
 SEARCH_SPACE: dict[str, tuple[float, float, str]] = {
-    "likelihood_sigma": (0.25, 1.0, "log"),
+    "observation.likelihood_sigma": (0.25, 1.0, "log"),
     "template_sigma": (0.001, 0.03, "log"),
-    "quadrant_weight": (0.0, 2.0, "linear"),
+    "observation.quadrant_weight": (0.0, 2.0, "linear"),
     "resample_threshold": (0.3, 1.0, "linear"),
-    "smooth_sigma": (0.0, 1.5, "linear"),
-    "eps": (1e-4, 1e-2, "log"),
+    "observation.smooth_sigma": (0.0, 1.5, "linear"),
+    "observation.eps": (1e-4, 1e-2, "log"),
     "kinematics.pos_sigma.0": (0.01, 0.12, "log"),
     "kinematics.scale_sigma.0": (0.003, 0.03, "log"),
     "kinematics.velocity_decay": (0.5, 1.0, "linear"),
-    "colour_weight": (0.0, 30.0, "linear"),  # 0: off (the previous default, the paper)
-    "grad_floor": (0.0, 0.9, "linear"),  # 0: no floor
+    "observation.colour_weight": (0.0, 30.0, "linear"),  # 0: off (the previous default, the paper)
+    "observation.grad_floor": (0.0, 0.9, "linear"),  # 0: no floor
 }
 
 
 def _field_path(d: dict, name: str) -> tuple:
     """The container and key of the dotted ``name`` inside ``as_dict()``'s output."""
+    if name.split(".")[0] in OBSERVATION_ALIASES:  # a flat observation name: observation.<name>
+        name = f"observation.{name}"
     *path, last = name.split(".")
     for key in path:
         d = d[int(key)] if isinstance(d, list) else d[key]
@@ -473,36 +371,18 @@ class ManifoldTracker:
 
     Notes
     -----
-    Besides the standard fields, ``last_record.extras`` holds ``modes``
-    ``(n,)`` (the noise mode each particle drew: 0, 1, or 2 for a
-    second-stage particle), ``velocity`` ``(2,)`` (of the estimate),
-    ``quadrant_distances`` ``(n, 4)`` (None without quadrants) and
-    ``likelihood_distances`` ``(n,)``, the distance each particle was weighed
-    by (``record.distances`` is the paper's template distance alone). The
-    likelihood's factors, so a diagnosis can tell which one a failure came
-    from:
+    Every record fills the typed fields of :class:`~covviz.records.FrameRecord`:
+    the particles (poses, log-weights, templates, ancestry, ``modes``), the
+    :class:`~covviz.records.Likelihood` (``d_eff`` and each term of ``d_eff²``)
+    and the :class:`~covviz.records.FrameInputs` ``update()`` weighed by (the
+    prepared grey frame, the colour map and state, the quadrant state); its
+    ``extras`` stay empty. The frozen :attr:`model` reaches observers through
+    the runner's ``on_start``.
 
-    * ``terms``: dict of name → ``(n,)``, each extra term of the likelihood
-      per particle, unweighted (``"quadrants"``, ``"colour"``, ``"context"``:
-      those the model has; empty for ``manifold-paper``);
-    * ``term_weights``: dict of name → weight, so that
-      ``likelihood_distances² == distances² + Σ_k term_weights[k]·terms[k]``
-      and each particle's log-weight is ``−likelihood_distances²/2σ²``
-      (normalised); a term's share of the weight is what removing it would
-      change;
-    * the online state the likelihood used this frame (frozen dataclasses,
-      None when off): ``colour_state`` (:class:`covviz.model.fgbg.ColourModel`;
-      ``model.colour_map(frame, state)`` then gives what
-      ``observe(..., colour=…)`` needs), ``colour_map`` (that map of this
-      frame, :class:`covviz.model.fgbg.ColourMap`, as ``update()`` weighed by it),
-      ``quadrant_state``
-      (:class:`~covviz.model.observation.QuadrantState`), ``anchor``
-      (:class:`AnchorState`, the template walk's anchor);
-    * ``pose_search``: the scale and rotation candidates scored at the
-      estimate and their ``d_eff`` (None without the search).
-
-    The init record's ``model`` is the observation model and its ``extras``
-    the initial online state.
+    :meth:`snapshot` returns a :class:`ManifoldState` (what ``update()`` changes,
+    plus a reference to the frozen model); :meth:`restore` puts it back, also
+    into a fresh tracker of the same config in another process, and ``update()``
+    then gives bit-identical boxes and records.
 
     Examples
     --------
@@ -514,6 +394,8 @@ class ManifoldTracker:
     """
 
     name = "manifold"
+    snapshots = True
+    particle_filter = True
 
     def __init__(self, config: ManifoldConfig | None = None, rng=None):
         self.config = config or ManifoldConfig()
@@ -525,6 +407,8 @@ class ManifoldTracker:
         self.quadrant_state: QuadrantState | None = None
         self.anchor: AnchorState | None = None
         self.last_record: FrameRecord | None = None
+        #: An experiment's hand in update() (covviz.diagnosis.counterfactual); None in normal runs.
+        self.intervention: Intervention | None = None
         self._sigma = self.config.sigma_matrix
         self._index = 0
         self._closed = False
@@ -537,6 +421,11 @@ class ManifoldTracker:
 
     def config_dict(self) -> dict:
         return self.config.as_dict()
+
+    @property
+    def observation_model(self) -> ObservationModel | None:
+        """The frozen observation model (built at :meth:`init`), for observers."""
+        return self.model
 
     def close(self) -> None:
         """Shut the observation threads down; the tracker cannot be used after this."""
@@ -551,6 +440,41 @@ class ManifoldTracker:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def snapshot(self) -> ManifoldState:
+        """What ``update()`` changes, frozen: particles, templates, the online state, the rng, the frame counter."""
+        if self.particles is None:
+            raise RuntimeError("call init(frame, box) before snapshot()")
+        ps = self.particles
+        return ManifoldState(
+            config=self.config,
+            model=self.model,
+            particles=ParticleSet(_ro(ps.states), _ro(ps.templates), _ro(ps.log_weights)),
+            initial_template=self.initial_template,
+            colour=self.colour,
+            quadrant_state=self.quadrant_state,
+            anchor=self.anchor,
+            rng_state=copy.deepcopy(self.rng.bit_generator.state),
+            index=self._index,
+        )
+
+    def restore(self, state: ManifoldState) -> None:
+        """Put a :meth:`snapshot` back: the next ``update()`` continues from it, bit for bit."""
+        if self._closed:
+            raise RuntimeError("this tracker was closed; make a new one")
+        if not isinstance(state, ManifoldState):
+            raise TypeError(f"restore() takes a ManifoldState, got {type(state).__name__}")
+        if state.config != self.config:
+            raise ValueError("this state was taken from a tracker of another config; make one with state.config")
+        self.model = state.model
+        self.particles = state.particles
+        self.initial_template = state.initial_template
+        self.colour = state.colour
+        self.quadrant_state = state.quadrant_state
+        self.anchor = state.anchor
+        self.rng.bit_generator.state = copy.deepcopy(state.rng_state)
+        self._index = state.index
+        self.last_record = None
+
     # ------------------------------------------------------------------ #
     def _observe(self, gray: np.ndarray, poses: np.ndarray, templates=None, timings=None):
         return self.model.observe(gray, poses, templates, self._pool, self.config.threads, timings)
@@ -562,10 +486,11 @@ class ManifoldTracker:
         cfg = self.config
         t0 = time.perf_counter()
         b = check_init_box(box, np.shape(frame))
-        self.model = model = ObservationModel.from_config(frame, b, cfg)
+        self.model = model = ObservationModel.build(frame, b, cfg.observation)
         x, y, w, h = b
         pose = np.array([[x + w / 2, y + h / 2, 1.0, 0.0]])
-        C0 = self._observe(model.prepare(frame), pose).descriptors
+        g0 = model.prepare(frame)
+        C0 = self._observe(g0, pose).descriptors
         L0 = logm(C0)[0]
         n = cfg.n_particles
         states = np.zeros((n, 6))
@@ -585,9 +510,36 @@ class ManifoldTracker:
             estimate_template=L0,
             estimate_descriptor=C0[0],
             timings={"total": time.perf_counter() - t0},
-            model=model,
-            extras={"colour_state": self.colour, "quadrant_state": self.quadrant_state, "anchor": self.anchor},
+            inputs=FrameInputs(g0, None, self.colour, self.quadrant_state),
         )
+
+    def _intervene(self, hook: Intervention, frame, gray, states, templates):
+        """The search and model fixes of a replay: particles moved to the truth, the appearance set from it.
+
+        Returns the states, the templates and the model to observe this frame with (the frozen
+        model, or a copy whose quadrant references are the truth's).
+        """
+        model = self.model
+        moved = hook.to_truth(self._index, len(states))
+        if moved is not None:
+            idx, box, velocity = moved
+            x, y, w, h = np.asarray(box, dtype=np.float64)
+            states = states.copy()
+            states[idx, X], states[idx, Y] = x + w / 2, y + h / 2
+            states[idx, SCALE] = np.sqrt(max(w * h, 1e-12) / (model.base_wh[0] * model.base_wh[1]))
+            states[idx, THETA] = 0.0
+            states[idx, VX], states[idx, VY] = velocity[0], velocity[1]
+        look = hook.appearance(self._index)
+        if look is not None:
+            truth = box_to_pose(look, model.base_wh)[None]
+            ob = model.observe(gray, truth)
+            templates = np.broadcast_to(logm(ob.descriptors)[0], templates.shape).copy()
+            if model.colour:
+                self.colour = fgbg.init_colour_model(frame, np.asarray(look, dtype=np.float64))
+            if model.quadrants:
+                Q = ob.quadrants[0]
+                model = dataclasses.replace(model, quadrant_reference=Q, quadrant_logdet=logdet(Q))
+        return states, templates, model
 
     def _refine(self, states, templates, modes, log_weights, ob, n1):
         """Second-stage particles: children of the first stage's best, with shrunken noise (coarse to fine).
@@ -641,8 +593,7 @@ class ManifoldTracker:
         states[:, THETA] = np.clip(
             states[:, THETA] + cfg.search_pull * cfg.search_blend * dtheta, -km.max_rotation, km.max_rotation
         )
-        return new, states, {"scale_poses": sp, "scale_distances": sd, "rotation_poses": rp,
-                             "rotation_distances": rd}
+        return new, states, PoseSearch(sp, sd, rp, rd)
 
     def update(self, frame: np.ndarray) -> np.ndarray:
         """Track into ``frame``; return the estimated box ``x, y, w, h``."""
@@ -664,9 +615,12 @@ class ManifoldTracker:
         )
         t1 = time.perf_counter()
         tm["propagate"] = t1 - t_start
+        gray = model.prepare(frame)
+        hook = self.intervention
+        if hook is not None:
+            states, templates, model = self._intervene(hook, frame, gray, states, templates)
 
         # 2. observe descriptors, and each template's distance, at every particle's pose
-        gray = model.prepare(frame)
         poses = states[:, POSE]
         colour_state, qstate = self.colour, self.quadrant_state
         tc = time.perf_counter()
@@ -700,6 +654,10 @@ class ManifoldTracker:
         est_state = mmse(states, lw)
         est_pose = est_state[POSE]
         est_template = mmse(templates, lw)
+        if hook is not None:
+            chosen = _chosen_estimate(hook, self._index, states, lw, model.base_wh)
+            if chosen is not None:
+                est_state, est_pose, est_template = states[chosen], states[chosen, POSE], templates[chosen]
         search = None
         if cfg.scale_steps > 0 or cfg.rotation_steps > 0:
             est_pose, states, search = self._search(gray, est_pose, est_template, states, cmap, qstate)
@@ -756,19 +714,13 @@ class ManifoldTracker:
             estimate_template=est_template,
             estimate_descriptor=est_desc,
             timings=tm,
-            extras={
-                "modes": modes,
-                "velocity": est_state[[VX, VY]],
-                "quadrant_distances": ob.quadrant_distances,
-                "likelihood_distances": ob.likelihood_distances,
-                "terms": ob.terms,
-                "term_weights": model.term_weights,
-                "colour_state": colour_state,
-                "colour_map": cmap,
-                "quadrant_state": qstate,
-                "anchor": anchor,
-                "pose_search": search,
-            },
+            modes=modes,
+            velocity=est_state[[VX, VY]],
+            likelihood=Likelihood(
+                ob.likelihood_distances, model.likelihood_sigma, ob.quadrant_distances, ob.terms, model.term_weights
+            ),
+            inputs=FrameInputs(gray, cmap, colour_state, qstate),
+            pose_search=search,
         )
         return box
 
@@ -792,6 +744,40 @@ class AnchorState:
     noise: float
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class ManifoldState:
+    """A :class:`ManifoldTracker`'s state between two frames (:meth:`ManifoldTracker.snapshot`).
+
+    Immutable and picklable: its arrays are read-only copies, its online parts
+    frozen dataclasses, and the frozen observation model is shared by reference.
+
+    Attributes
+    ----------
+    config : ManifoldConfig
+    model : ObservationModel
+    particles : ParticleSet
+        Kinematics ``(n, 6)``, log-space templates ``(n, 9, 9)``, log-weights ``(n,)``.
+    initial_template : ndarray, shape (9, 9)
+    colour : ColourModel or None
+    quadrant_state : QuadrantState or None
+    anchor : AnchorState or None
+    rng_state : dict
+        The bit generator's state (``Generator.bit_generator.state``).
+    index : int
+        0-based index of the last frame tracked.
+    """
+
+    config: ManifoldConfig
+    model: ObservationModel
+    particles: ParticleSet
+    initial_template: np.ndarray
+    colour: fgbg.ColourModel | None
+    quadrant_state: QuadrantState | None
+    anchor: AnchorState | None
+    rng_state: dict
+    index: int
+
+
 def _ro(a: np.ndarray) -> np.ndarray:
     a = np.array(a, dtype=np.float64)
     a.flags.writeable = False
@@ -813,6 +799,21 @@ def _concat_observations(a, b):
         cat(a.likelihood_distances, b.likelihood_distances),
         {k: np.concatenate([v, b.terms[k]]) for k, v in a.terms.items()},
     )
+
+
+#: The estimate fix chooses among the particles that hold this share of the weight.
+ESTIMATE_MASS = 0.9
+
+
+def _chosen_estimate(hook: Intervention, index: int, states, lw, base_wh) -> int | None:
+    """The particle an intervention reports instead of the MMSE estimate, among those holding
+    :data:`ESTIMATE_MASS` of the weight (None: the estimator's own)."""
+    w = np.exp(lw - lw.max())
+    order = np.argsort(-w, kind="stable")
+    c = np.cumsum(w[order]) / w.sum()
+    cand = order[: int(np.searchsorted(c, ESTIMATE_MASS)) + 1]
+    j = hook.estimate(index, pose_to_box(states[cand][:, POSE], base_wh))
+    return None if j is None else int(cand[j])
 
 
 def _parabolic_step(d: np.ndarray) -> float:
@@ -860,8 +861,6 @@ NEW_TERMS_OFF = {k: v for k, v in PAPER_LIKELIHOOD.items() if k != "quadrants"}
 
 def make_paper(n_particles: int | None = None, rng=None, config: ManifoldConfig | None = None) -> ManifoldTracker:
     """Factory for ``manifold-paper``: ``config`` (default: the defaults) with :data:`PAPER_LIKELIHOOD`."""
-    from dataclasses import replace
-
-    tr = make(n_particles, rng, replace(config or ManifoldConfig(), **PAPER_LIKELIHOOD))
+    tr = make(n_particles, rng, (config or ManifoldConfig()).replace(**PAPER_LIKELIHOOD))
     tr.name = "manifold-paper"
     return tr

@@ -48,6 +48,7 @@ import numpy as np
 
 from covviz.model.image import check_init_box
 from covviz.records import FrameRecord
+from covviz.trackers.base import SnapshotUnsupported
 
 __all__ = [
     "CONSTRUCTORS",
@@ -162,6 +163,19 @@ class OpenCVTracker:
     >>> tr.init(seq.frame(0).image, seq.init_box)
     >>> box = tr.update(seq.frame(1).image)
     """
+
+    snapshots = False
+    observation_model = None
+
+    def snapshot(self):
+        """OpenCV keeps its trackers' state in C++: raises :class:`~covviz.trackers.base.SnapshotUnsupported`."""
+        raise SnapshotUnsupported(
+            f"{self.name}: OpenCV's trackers cannot be saved and restored; replays restart it at the truth instead"
+        )
+
+    def restore(self, state) -> None:
+        """See :meth:`snapshot`."""
+        self.snapshot()
 
     def __init__(self, name: str) -> None:
         self._create, self.constructor = _resolve(name)

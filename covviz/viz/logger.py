@@ -31,7 +31,7 @@ import numpy as np
 import rerun as rr
 
 from covviz import __version__
-from covviz.diagnosis.drift import Diagnoser, DiagnosisConfig
+from covviz.diagnosis.drift import Diagnoser, DiagnosisConfig, FrameNews
 from covviz.embedding import AlignedMDS, distance_matrix, stress1
 from covviz.metrics import center_error, evaluate, iou, nothing_to_score
 from covviz.model.features import pose_corners
@@ -39,11 +39,14 @@ from covviz.model.observation import ObservationModel, box_to_pose
 from covviz.model.particles import effective_sample_size
 from covviz.model.spd import logm
 from covviz.records import FrameRecord, frame_number
+from covviz.runner import Findings, Observer, Pipeline, RunStart
 from covviz.threads import limit_threads
+from covviz.trackers.base import TrackerInfo
 from covviz.viz import paths as P
 from covviz.viz import why
 from covviz.viz.blueprint import build_blueprint
 from covviz.viz.checks import checked, closed_strips, jpeg_bytes
+from covviz.viz.defaults import MDS_EVERY
 from covviz.viz.description import DESCRIPTION, viewer_safe
 from covviz.viz.diagnostics import (
     background_poses,
@@ -124,7 +127,7 @@ class LoggerConfig:
         ... and for this many frames after the loss and every suspect.
     """
 
-    mds_every: int = 10
+    mds_every: int = MDS_EVERY
     likelihood_every: int | None = None
     spread_every: int = 3
     spread_templates: int = 32
@@ -163,27 +166,16 @@ class LoggerConfig:
         return self.mds_every if self.likelihood_every is None else self.likelihood_every
 
 
-def _has_templates(tracker) -> bool:
-    """Whether a tracker carries covariance templates (the manifold tracker and its variants)."""
-    return hasattr(getattr(tracker, "config", None), "template_sigma")
-
-
-def _has_particles(tracker) -> bool:
-    """Whether a tracker is a particle filter (its records carry weights)."""
-    cfg = getattr(tracker, "config", None)
-    return _has_templates(tracker) or hasattr(cfg, "n_particles") or hasattr(cfg, "particles")
-
-
 # --------------------------------------------------------------------------- #
 # per-tracker state
 # --------------------------------------------------------------------------- #
 class _TrackerState:
-    def __init__(self, name: str, tracker, color, cfg: LoggerConfig, index: int):
+    def __init__(self, name: str, info: TrackerInfo, color, cfg: LoggerConfig, index: int):
         self.name = name
         self.paths = P.TrackerPaths(name)
-        self.tracker = tracker
+        self.info = info
         self.color = color
-        self.model: ObservationModel | None = None  # from the tracker's init record
+        self.model: ObservationModel | None = info.model  # the tracker's frozen observation model
         self.mds = AlignedMDS(cfg.mds_method)
         # SMACOF for the cloud alone: classical MDS would flatten it (see covviz.embedding.embed).
         self.mds_zoom = AlignedMDS("smacof", max_iter=20)
@@ -209,20 +201,19 @@ class _TrackerState:
         self.warned: set[str] = set()
 
 
-def term_contributions(extras: dict, n: int, problems: list | None = None) -> dict[str, np.ndarray]:
-    """``weight_k · term_k`` per particle, ``(n,)`` each, of the extra terms a record's ``extras`` carry.
+def term_contributions(record: FrameRecord, n: int, problems: list | None = None) -> dict[str, np.ndarray]:
+    """``weight_k · term_k`` per particle, ``(n,)`` each, of the extra terms of a record's likelihood.
 
-    ``extras["terms"]`` (unweighted, by name) and ``extras["term_weights"]``, as
-    the manifold tracker records them: ``d_eff² = d² + Σ_k`` of these. ``{}``
-    for a record without them (the paper's likelihood, another tracker).
+    ``d_eff² = d² + Σ_k`` of these (:meth:`covviz.records.Likelihood.contributions`);
+    ``{}`` for a record without them (the paper's likelihood, another tracker).
     """
-    terms = (extras or {}).get("terms") or {}
-    weights = (extras or {}).get("term_weights") or {}
+    if record.likelihood is None:
+        return {}
     out = {}
-    for k, t in terms.items():
-        t = checked(t, (n,), f"terms[{k}]", problems if problems is not None else [])
-        if t is not None and k in weights:
-            out[k] = float(weights[k]) * np.asarray(t, dtype=np.float64)
+    for k, c in record.likelihood.contributions().items():
+        c = checked(c, (n,), f"terms[{k}]", problems if problems is not None else [])
+        if c is not None:
+            out[k] = c
     return out
 
 
@@ -259,7 +250,7 @@ def term_shares(
 # --------------------------------------------------------------------------- #
 # the observer
 # --------------------------------------------------------------------------- #
-class RerunLogger:
+class RerunLogger(Observer):
     """Observer that logs a run into a Rerun recording.
 
     Parameters
@@ -292,11 +283,9 @@ class RerunLogger:
         config: LoggerConfig | None = None,
         run_info: dict | None = None,
         close_on_end: bool = True,
-        diagnoser: Diagnoser | None = None,
     ):
         self.stream = stream
         self.config = config or LoggerConfig()
-        self.diagnoser = diagnoser or Diagnoser(self.config.diagnosis)
         self._recent: deque = deque(maxlen=max(1, self.config.dense_before))
         self.run_info = dict(run_info or {})
         self.close_on_end = close_on_end
@@ -307,23 +296,24 @@ class RerunLogger:
         self.log_seconds = 0.0  # time spent in on_frame, for the overhead benchmark
 
     # ------------------------------------------------------------------ #
-    def on_start(self, sequence, trackers: Seq) -> None:
+    def on_start(self, start: RunStart, found: Findings) -> None:
         rec, cfg = self.stream, self.config
+        sequence = start.sequence
         names: list[str] = []
-        for i, tr in enumerate(trackers):
+        for i, info in enumerate(start.trackers):
             # Entity-path friendly, and drawable by the viewer's font.
-            base = re.sub(r"[^A-Za-z0-9_.+-]", "_", str(getattr(tr, "name", "") or "")) or f"tracker{i}"
+            base = re.sub(r"[^A-Za-z0-9_.+-]", "_", info.name) or f"tracker{i}"
             name, k = base, 2
             while name in names:
                 name, k = f"{base}-{k}", k + 1
             names.append(name)
         self._states = []
-        for i, (name, tr) in enumerate(zip(names, trackers)):
-            color = tracker_color(getattr(tr, "name", ""), i)
-            self._states.append(_TrackerState(name, tr, color, cfg, i))
-        self._fps = getattr(sequence, "frame_rate", None) or None
-        with_cloud = [s.name for s in self._states if _has_templates(s.tracker)]
-        with_particles = [s.name for s in self._states if _has_particles(s.tracker)]
+        for i, (name, info) in enumerate(zip(names, start.trackers)):
+            color = tracker_color(info.name, i)
+            self._states.append(_TrackerState(name, info, color, cfg, i))
+        self._fps = sequence.frame_rate or None
+        with_cloud = [s.name for s in self._states if s.info.model is not None]
+        with_particles = [s.name for s in self._states if s.info.particles]
         # Several particle trackers: the second and later get their own colour ramp and series colours.
         for k, s in enumerate(st for st in self._states if st.name in with_particles):
             if k > 0:
@@ -332,7 +322,6 @@ class RerunLogger:
                     key: tuple(int(0.4 * a + 0.6 * b) for a, b in zip(col[:3], s.color))
                     for key, col in SERIES_COLORS.items()
                 }
-        self.diagnoser.on_start(sequence, trackers)
         # The blueprint goes out with the first frame, when the image size is known.
         self._blueprint_args = (names, with_cloud, with_particles)
         rec.send_recording_name(
@@ -347,13 +336,10 @@ class RerunLogger:
             "sequence": {
                 "name": sequence.name,
                 "frames": len(sequence),
-                "frame_rate": getattr(sequence, "frame_rate", None),
+                "frame_rate": sequence.frame_rate,
             },
             "run": self.run_info,
-            "trackers": {
-                s.name: (s.tracker.config_dict() if hasattr(s.tracker, "config_dict") else {})
-                for s in self._states
-            },
+            "trackers": {s.name: s.info.config for s in self._states},
             "logger": asdict(cfg),
         }
         text = (
@@ -435,17 +421,17 @@ class RerunLogger:
         )
 
     # ------------------------------------------------------------------ #
-    def on_frame(self, frame, records: Seq[FrameRecord]) -> None:
+    def on_frame(self, frame, records: Seq[FrameRecord], found: Findings) -> None:
         t0 = time.perf_counter()
         # The diagnostics do linear algebra on small matrices (9×9 stacks, a ~80×80 eigh), where
         # BLAS threads only add wake-up latency (10-100× on a loaded 2-core machine).
         with limit_threads(1, opencv=False):
-            self._on_frame(frame, records)
+            self._on_frame(frame, records, found.news or (None,) * len(records))
         dt = time.perf_counter() - t0
         self.log_seconds += dt
         self.stream.log(P.LOGGER_TIME, rr.Scalars(dt * 1e3))
 
-    def _on_frame(self, frame, records: Seq[FrameRecord]) -> None:
+    def _on_frame(self, frame, records: Seq[FrameRecord], news: Seq) -> None:
         rec, cfg = self.stream, self.config
         i = int(frame.index)
         self._last_frame = i
@@ -469,10 +455,9 @@ class RerunLogger:
             rec.log(P.GROUND_TRUTH, rr.Boxes2D(mins=[gt[:2]], sizes=[gt[2:]]))
         else:
             rec.log(P.GROUND_TRUTH, rr.Clear(recursive=False))
-        self.diagnoser.on_frame(frame, records)
         self._recent.append((frame, list(records)))
         prepared_cache: dict[int, object] = {}
-        for s, record, found in zip(self._states, records, self.diagnoser.new):
+        for s, record, found in zip(self._states, records, news):
             self._log_tracker(s, frame, record, gt, prepared_cache, found)
 
     def _set_time(self, frame) -> None:
@@ -488,29 +473,28 @@ class RerunLogger:
                 log.warning("%s: %s; not logged (further occurrences silent)", s.name, msg)
                 self.stream.log(s.paths.events, rr.TextLog(viewer_safe(f"not logged: {msg}"), level="WARN"))
 
-    def _log_tracker(self, s: _TrackerState, frame, record: FrameRecord, gt, prepared_cache, found: dict) -> None:
-        """Everything one tracker's record says about one frame, view by view; ``found``: the diagnoser's news."""
+    def _log_tracker(self, s: _TrackerState, frame, record: FrameRecord, gt, prepared_cache,
+                     found: FrameNews | None) -> None:
+        """Everything one tracker's record says about one frame, view by view; ``found``: the diagnosis's news."""
         rec = self.stream
         i = int(frame.index)
         problems: list[str] = []
         for path in s.clear_next:
             rec.log(path, rr.Clear(recursive=False))
         s.clear_next = []
-        if isinstance(record.model, ObservationModel):  # the init record: what the tracker sees, frozen
-            s.model = record.model
         box = self._log_estimate(s, record, problems)
         self._log_particles(s, record, problems)
         s.last_iou = self._log_quality(s, box, gt)
         self._log_spread(s, record, i, problems)
         est_t = self._log_heatmap(s, record, i, problems)
         self._log_timings(s, record)
-        ev = found.get("evidence")
-        if ev is not None:
-            why.log_evidence(self.stream, s.paths, ev, s.model is not None)
+        if found is not None:
+            why.log_evidence(self.stream, s.paths, found.evidence, s.model is not None)
         self._log_zoom(s, frame, record, gt, prepared_cache)
         dense = i <= s.dense_until
         self._log_diagnostics(s, frame, record, box, gt, est_t, prepared_cache, problems, dense)
-        self._log_events(s, frame, found)
+        if found is not None:
+            self._log_events(s, frame, found)
         if i <= s.dense_until and i not in s.drawn:  # an event on this very frame: its views too
             self._log_diagnostics(s, frame, record, box, gt, est_t, prepared_cache, problems, dense=True)
         if problems:
@@ -556,15 +540,17 @@ class RerunLogger:
                 top_any["distance"] = dist[top]
             # Trackers whose weights use more than d(C, C*) (the manifold tracker's quadrant
             # term) say so in extras: hovering a top particle shows what it was weighed by.
-            d_lik = checked(record.extras.get("likelihood_distances"), (len(w),), "likelihood_distances", problems)
+            lik = record.likelihood
+            d_lik = None if lik is None else checked(lik.distances, (len(w),), "likelihood_distances", problems)
             if d_lik is not None and d_lik is not dist:
                 top_any["likelihood_distance"] = d_lik[top]
-            d_quad = checked(record.extras.get("quadrant_distances"), (len(w), -1), "quadrant_distances", problems)
+            d_quad = None if lik is None or lik.quadrant_distances is None else checked(
+                lik.quadrant_distances, (len(w), -1), "quadrant_distances", problems)
             if d_quad is not None:
                 for j in range(d_quad.shape[1]):
                     top_any[f"quadrant_distance_{j}"] = d_quad[top, j]
             # Each extra term of d_eff², weighted (d_eff² = d² + Σ term_k): which one a particle lost by.
-            contrib = term_contributions(record.extras, len(w), problems)
+            contrib = term_contributions(record, len(w), problems)
             for k, c in contrib.items():
                 top_any[f"term_{k}"] = c[top]
             rec.log(
@@ -669,7 +655,7 @@ class RerunLogger:
         model = s.model
         if model is None or record.pose is None:
             return
-        prepared = self._prepared(s, frame, prepared_cache)
+        prepared = self._prepared(s, frame, record, prepared_cache)
         poses = [np.asarray(record.pose, dtype=np.float64)]
         if gt is not None:
             poses.append(box_to_pose(gt, model.base_wh))
@@ -679,7 +665,10 @@ class RerunLogger:
         truth = patches[1] if gt is not None else None
         why.log_zoom(self.stream, s.paths, why.zoom_image([patches[0], truth, s.initial_patch]))
 
-    def _prepared(self, s: _TrackerState, frame, prepared_cache):
+    def _prepared(self, s: _TrackerState, frame, record: FrameRecord, prepared_cache):
+        """The frame as the tracker's model samples it: the record's own (what update() read), else prepared once."""
+        if record.inputs is not None:
+            return record.inputs.gray
         key = id(s.model)
         if key not in prepared_cache:
             prepared_cache[key] = s.model.prepare(frame.image)
@@ -716,7 +705,7 @@ class RerunLogger:
         if not (want_mds or want_lik) or model is None:
             return
         s.drawn.append(i)
-        prepared = self._prepared(s, frame, prepared_cache)
+        prepared = self._prepared(s, frame, record, prepared_cache)
         pose = checked(record.pose, (4,), "pose", problems)
         if pose is None and box is not None:
             pose = box_to_pose(box, model.base_wh)
@@ -725,7 +714,7 @@ class RerunLogger:
         try:
             if want_lik:
                 # Every term update() weighed this frame by (the colour map, the quadrant state).
-                inputs = model.frame_inputs(frame.image, record.extras)
+                inputs = record.inputs.likelihood_kwargs() if record.inputs is not None else {}
                 self._log_likelihood(s, model, prepared, pose, est_t, inputs)
                 truth = None if gt is None else box_to_pose(gt, model.base_wh)
                 self._log_slices(s, model, prepared, pose, truth, est_t, inputs)
@@ -769,11 +758,11 @@ class RerunLogger:
             s.clear_next = []
         self._set_time(here)
 
-    def _log_events(self, s: _TrackerState, frame, found: dict) -> None:
+    def _log_events(self, s: _TrackerState, frame, found: FrameNews) -> None:
         """Events, diagnoses and suspects of the diagnoser, each on the frame it belongs to."""
         rec, p = self.stream, s.paths
         number = frame_number(frame.index)
-        for ev in found.get("events", ()):
+        for ev in found.events:
             if ev.frame != number:  # a drift is reported on the frame where it began
                 self._at_number(ev.frame)
             rec.log(p.events, rr.TextLog(viewer_safe(f"[{s.name}] frame {ev.frame}: {ev.text}"), level=ev.level))
@@ -788,14 +777,14 @@ class RerunLogger:
                 s.drifts.append(ev.frame)
             elif ev.kind == "storm":
                 s.n_storms += 1
-        for d in found.get("diagnoses", ()):
+        for d in found.diagnoses:
             s.diagnoses.append(d)
             rec.log(p.events, rr.TextLog(viewer_safe(f"[{s.name}] {d.text}"), level="ERROR"))
             self._event_record(s, "diagnosis", d.lost_at, "ERROR", d.text, cause=d.cause, evidence=d.as_dict())
             # The views back to the drift onset, and on for a few frames.
             self._redo_around(s, d.drift_began - 1 - self.config.diagnosis.look_before, d.lost_at - 1)
             s.dense_until = max(s.dense_until, int(frame.index) + self.config.dense_after)
-        for sp in found.get("suspects", ()):
+        for sp in found.suspects:
             rec.log(p.events, rr.TextLog(viewer_safe(f"[{s.name}] frame {sp.frame}: suspect - {sp.text}"), level="WARN"))
             self._event_record(s, "suspect", sp.frame, "WARN", sp.text, cause=sp.kind)
             iou_now = found["evidence"].iou if found.get("evidence") is not None else float("nan")
@@ -948,13 +937,12 @@ class RerunLogger:
         return stress1(X, D)
 
     # ------------------------------------------------------------------ #
-    def on_end(self, results) -> None:
+    def on_end(self, results, found: Findings) -> None:
         rec = self.stream
         try:
-            self.diagnoser.on_end(results)
             last = frame_number(self._last_frame) if self._last_frame >= 0 else 0
             lines = ["# Summary of the run", ""]
-            interrupted = any(getattr(r, "interrupted", False) for r in results)
+            interrupted = any(r.interrupted for r in results)
             if interrupted:
                 lines += [
                     (
@@ -1005,3 +993,11 @@ class RerunLogger:
         :class:`~covviz.errors.WriteError` (see :func:`~covviz.viz.sinks.close_stream`).
         """
         close_stream(self.stream, timeout=FLUSH_TIMEOUT)
+
+
+def recorder(stream: rr.RecordingStream, config: LoggerConfig | None = None, run_info: dict | None = None,
+             close_on_end: bool = True) -> Pipeline:
+    """The drift diagnosis and the Rerun logger after it: what ``covviz track`` records, as one observer."""
+    config = config or LoggerConfig()
+    return Pipeline([Diagnoser(config.diagnosis),
+                     RerunLogger(stream, config, run_info=run_info, close_on_end=close_on_end)])

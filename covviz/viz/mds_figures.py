@@ -37,6 +37,7 @@ from covviz.errors import InputError
 from covviz.metrics import iou, valid_rows
 from covviz.model.observation import ObservationModel, box_to_pose
 from covviz.model.spd import expm
+from covviz.runner import Observer
 from covviz.viz.diagnostics import top_k
 from covviz.viz.palette import BACKGROUND_COLOR as BLUE
 from covviz.viz.palette import GT_COLOR as RED
@@ -137,9 +138,7 @@ def _region_descriptors(model: ObservationModel, image: np.ndarray, boxes: np.nd
 
 def default_model(sequence) -> ObservationModel:
     """The observation model of the default manifold tracker started on the sequence's first frame."""
-    from covviz.trackers.manifold import ManifoldConfig
-
-    return ObservationModel.from_config(sequence.frame(0).image, sequence.init_box, ManifoldConfig())
+    return ObservationModel.build(sequence.frame(0).image, sequence.init_box)
 
 
 def _background_boxes(gt: np.ndarray, shape, n: int, max_overlap: float, rng) -> np.ndarray:
@@ -197,7 +196,7 @@ def separation_data(
     return Separation(X, np.array(kinds), np.array(frames), model.describe())
 
 
-class _WalkCollector:
+class _WalkCollector(Observer):
     """Observer collecting templates and target descriptors at chosen 0-based frames."""
 
     def __init__(self, indices: set[int], cfg: MDSFiguresConfig):
@@ -213,11 +212,12 @@ class _WalkCollector:
         self.kinds += [kind] * len(self.mats[-1])
         self.frames += [frame1] * len(self.mats[-1])
 
-    def on_frame(self, frame, records) -> None:
+    def on_start(self, start, found) -> None:
+        self.model = start.trackers[0].model  # the tracker's frozen observation model
+
+    def on_frame(self, frame, records, found) -> None:
         i = int(frame.index)
         r = records[0]
-        if r.model is not None:
-            self.model = r.model  # the init record: the tracker's observation model
         if i not in self.indices:
             return
         if i == 0 and r.estimate_template is not None:
