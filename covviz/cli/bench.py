@@ -73,6 +73,12 @@ def add_bench_parser(sub) -> argparse.ArgumentParser:
         "--force", action="store_true", help="re-run every job, even into a folder from another run"
     )
     p.add_argument("--no-report", action="store_true", help="do not write the report at the end")
+    p.add_argument(
+        "--counterfactual",
+        action="store_true",
+        help="replay every loss inside its job with the search, the model or the estimate fixed (see 'covviz "
+        "track --help'); the report then adds losses by verdict and what fixing each would gain (ΔAUC)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_bench)
     return p
@@ -112,6 +118,7 @@ def cmd_bench(args) -> int:
         config=None if config is None else config.as_dict(),
         cluster=args.cluster,
         retries=args.retries,
+        counterfactual=args.counterfactual,
     )
     n_failed = len(summary["failed"])
     for event in summary.get("events", []):

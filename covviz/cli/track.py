@@ -23,10 +23,12 @@ from covviz.cli.common import (
     nonneg_int,
     parse_box,
     positive_int,
+    read_config,
     tracker_list,
 )
 from covviz.data.sequences import open_sequence
 from covviz.errors import InputError
+from covviz.trackers import CONFIGURABLE, make_tracker
 
 TRACK_EPILOG = """\
 examples:
@@ -79,9 +81,27 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
     p.add_argument("--out", type=Path, default=Path("runs"), help="results folder (default: runs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--no-counterfactual",
+        action="store_true",
+        help="do not replay the losses (by default each loss is replayed from the tracker's state a few frames "
+        "before its drift began, with the search, the model or the estimate fixed from the ground truth, and "
+        "the smallest fix that keeps the track is its verdict; needs ground truth)",
+    )
     add_recording_args(p)
     p.set_defaults(func=cmd_track)
     return p
+
+def replay_line(d: dict) -> str:
+    """A diagnosis's replays in one line: the verdict, each fix with its mean IoU, what was replayed."""
+    cf, rp = d["counterfactual"], d["replay"]
+    fixes = " · ".join(f"{k} {'KEPT' if o['kept'] else 'lost'} {_iou(o['mean_iou'])}"
+                       for k, o in cf.items() if k != "none")
+    none = cf.get("none")
+    check = "" if none is None or none.get("identical") else " · THE UNCHANGED REPLAY DIFFERS FROM THE RUN"
+    return (f"verdict: {d['verdict'].upper()} · fixes (mean IoU of the replay): {fixes} · replayed frames "
+            f"{rp['from']}-{rp['to']} ({rp['frames_after_loss']} after the loss) in {rp['seconds']:.1f} s{check}")
+
 
 def _print_diagnosis(found: dict | None) -> None:
     """The terminal summary of the drift diagnosis: every loss with its cause, the suspects' count."""
@@ -89,6 +109,8 @@ def _print_diagnosis(found: dict | None) -> None:
         return
     for d in found.get("diagnoses", []):
         print(f"  {d['text']}")
+        if "verdict" in d:
+            print(f"    {replay_line(d)}")
     sus = found.get("suspects", [])
     if sus:
         kinds = sorted({sp["kind"] for sp in sus})
@@ -99,20 +121,22 @@ def _print_diagnosis(found: dict | None) -> None:
         print("  frames off track: " + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items()))
 
 def _recording_observers(
-    args, seq, n_frames: int, diagnoser, created: list[Path] | None = None
+    args, seq, n_frames: int, stages: list, created: list[Path] | None = None
 ) -> tuple[list, Path | None]:
     """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file.
 
-    Without a recording, the drift diagnosis runs on its own background thread.
+    ``stages``: the observers before it (the drift diagnosis, the replays of its losses), run with
+    it on one background thread; without a recording, they run there alone.
     """
+    diagnoser = stages[0]
     save = None if args.no_save else (args.save or default_recording_path(seq.name, args.trackers, args.seed))
     if args.no_save and args.save is not None:
         raise UsageError("--save and --no-save contradict each other; give one")
     live = bool(args.spawn or args.connect or args.serve_web)
-    from covviz.runner import BackgroundObserver
+    from covviz.runner import BackgroundObserver, Pipeline
 
     if save is None and not live:
-        return [BackgroundObserver(diagnoser)], None  # the diagnosis alone, on its own thread
+        return [BackgroundObserver(Pipeline(stages))], None  # the diagnosis alone, on its own thread
     if save is not None:
         _check_recording_path(save, n_frames, len(args.trackers), created)
     _check_viewer(args)
@@ -132,11 +156,10 @@ def _recording_observers(
         "max_frames": args.max_frames,
         "particles": args.particles,
     }
-    # The diagnosis, then the recorder that shows what it found, on one thread of their own that
-    # overlaps the tracker (runner.BackgroundObserver); the results writer comes after them.
-    from covviz.runner import Pipeline
-
-    return [BackgroundObserver(Pipeline([diagnoser, RerunLogger(stream, config, run_info=info)]))], save
+    # The diagnosis (and the replays of its losses, after the last frame), then the recorder that
+    # shows what they found, on one thread of their own that overlaps the tracker
+    # (runner.BackgroundObserver); the results writer comes after them.
+    return [BackgroundObserver(Pipeline([*stages, RerunLogger(stream, config, run_info=info)]))], save
 
 def cmd_track(args) -> int:
     # One native thread for BLAS and OpenCV while tracking: more only contend with the
@@ -218,9 +241,12 @@ def _track(args) -> int:
     try:
         _check_out_dir(args.out, created)
         trackers = _make_trackers(args.trackers, args.seed, args.particles, getattr(args, "config", None))
-        diagnoser = Diagnoser()
+        stages = [Diagnoser()]
+        replays = _counterfactuals(args, seq, n_frames, trackers)
+        if replays is not None:
+            stages.append(replays)
         # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
-        recorders, rrd = _recording_observers(args, seq, n_frames, diagnoser, created)
+        recorders, rrd = _recording_observers(args, seq, n_frames, stages, created)
     except BaseException:
         _remove_empty(created)
         raise
@@ -229,9 +255,25 @@ def _track(args) -> int:
         for tr in trackers:
             if hasattr(tr, "close"):
                 stack.callback(tr.close)
-        return _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created)
+        return _run_tracking(args, seq, trackers, replays, recorders, rrd, created)
 
-def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> int:
+def _counterfactuals(args, seq, n_frames: int, trackers):
+    """The replays of every loss (on by default when the frames after the first have ground truth)."""
+    import numpy as np
+
+    from covviz.diagnosis.counterfactual import Counterfactuals
+
+    if args.no_counterfactual or not np.isfinite(seq.groundtruth[1:n_frames]).all(axis=1).any():
+        return None
+    config = read_config(getattr(args, "config", None), args.trackers)
+    factories = [
+        (lambda name=name: make_tracker(name, seed=args.seed, n_particles=args.particles,
+                                        config=config if name in CONFIGURABLE else None))
+        for name in args.trackers
+    ]
+    return Counterfactuals(trackers, factories)
+
+def _run_tracking(args, seq, trackers, replays, recorders, rrd, created) -> int:
     from covviz.experiments.results import ResultWriter
     from covviz.metrics import nothing_to_score
     from covviz.runner import FreeSpaceGuard, ResultCollector, run_many
@@ -256,6 +298,7 @@ def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> in
             max_frames=args.max_frames,
             progress=not args.no_progress,
             seeds=[args.seed] * len(trackers),
+            checkpoints=None if replays is None else replays.config.checkpoints,
         )
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (covviz.signals): keep what was done
         code = exit_code(exc)
@@ -309,3 +352,7 @@ def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> in
 # --------------------------------------------------------------------------- #
 # bench and report
 # --------------------------------------------------------------------------- #
+
+
+def _iou(v) -> str:
+    return "nan" if v is None else f"{v:.2f}"

@@ -190,6 +190,7 @@ def plan_jobs(
     particles: int | None = None,
     max_frames: int | None = None,
     config: dict | None = None,
+    counterfactual: bool = False,
 ) -> list[Job]:
     """Every (sequence, tracker, seed) job, longest first.
 
@@ -217,7 +218,8 @@ def plan_jobs(
         n_run = n if max_frames is None else min(n, max_frames)
         for tr in trackers:
             for s in range(seeds) if tr in STOCHASTIC else [None]:
-                jobs.append(Job(name, path, n_run, tr, s, particles, max_frames, text if tr in CONFIGURABLE else None))
+                jobs.append(Job(name, path, n_run, tr, s, particles, max_frames, text if tr in CONFIGURABLE else None,
+                                counterfactual))
     return sorted(
         jobs, key=lambda j: (-j.n_frames, j.tracker not in STOCHASTIC, j.sequence, j.tracker, j.seed or 0)
     )
@@ -449,6 +451,7 @@ def bench(
     cluster: str | None = None,
     retries: int = 1,
     executor=None,
+    counterfactual: bool = False,
 ) -> dict:
     """Run ``trackers`` on every sequence under ``root``; write results and a report to ``out``.
 
@@ -496,6 +499,8 @@ def bench(
     ------
     BenchError
         Empty root, unknown tracker, a folder from another run, a corrupt result.
+    counterfactual : bool
+        Replay every loss inside its job (:mod:`covviz.diagnosis.counterfactual`).
     """
     from covviz.trackers import tracker_names
 
@@ -526,13 +531,13 @@ def bench(
     with lock_results_folder(out):
         return _bench_locked(
             root, out, sequences, trackers, configs, seeds, jobs, max_frames, particles, force, progress,
-            report, config, cluster, retries, executor,
+            report, config, cluster, retries, executor, counterfactual,
         )
 
 
 def _bench_locked(
     root, out, sequences, trackers, configs, seeds, jobs, max_frames, particles, force, progress, report,
-    config, cluster, retries, executor,
+    config, cluster, retries, executor, counterfactual=False,
 ) -> dict:
     from covviz.trackers import STOCHASTIC
 
@@ -555,7 +560,7 @@ def _bench_locked(
     manifest["stochastic"] = sorted(set(manifest["trackers"]) & STOCHASTIC)
     manifest["configs"] = {**((old or {}).get("configs") or {}), **configs}
 
-    all_jobs = plan_jobs(sequences, trackers, seeds, particles, max_frames, config)
+    all_jobs = plan_jobs(sequences, trackers, seeds, particles, max_frames, config, counterfactual)
     todo = all_jobs if force else [j for j in all_jobs if not _is_done(j, out, configs[j.tracker])]
     skipped = len(all_jobs) - len(todo)
     write_manifest(out, manifest)

@@ -64,7 +64,8 @@ class Job:
 
     ``config``: the tracker's config as JSON text (a ManifoldConfig's
     ``as_dict()``; trackers of :data:`covviz.trackers.CONFIGURABLE` only), or
-    None for the tracker's defaults.
+    None for the tracker's defaults. ``counterfactual``: replay every loss
+    (:mod:`covviz.diagnosis.counterfactual`) after the run, inside the job.
     """
 
     sequence: str
@@ -75,6 +76,7 @@ class Job:
     particles: int | None
     max_frames: int | None
     config: str | None = None
+    counterfactual: bool = False
 
     @property
     def label(self) -> str:
@@ -187,6 +189,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
 
 
     from covviz.data.sequences import open_sequence
+    from covviz.diagnosis.counterfactual import with_replays
     from covviz.diagnosis.drift import Diagnoser
     from covviz.experiments.results import versions
     from covviz.metrics import (
@@ -197,18 +200,30 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
         precision_curve,
         success_curve,
     )
-    from covviz.runner import BackgroundObserver, run
+    from covviz.runner import BackgroundObserver, Pipeline, run
     from covviz.threads import limit_threads
 
     seq = open_sequence(job.path)
     tracker = job.make_tracker()
     failures = _FailureCounter()
     diagnoser = Diagnoser()
+    stages: list = [diagnoser]
+    replays = None
+    if job.counterfactual:
+        from covviz.diagnosis.counterfactual import Counterfactuals
+
+        replays = Counterfactuals([tracker], [job.make_tracker])
+        stages.append(replays)
     t0 = time.perf_counter()
     with limit_threads(threads), contextlib.closing(tracker) if hasattr(tracker, "close") else contextlib.nullcontext():
-        # The drift diagnosis on its own thread, overlapping the tracker (it never changes a box).
-        res = run(tracker, seq, [failures, BackgroundObserver(diagnoser)], max_frames=job.max_frames, seed=job.seed)
+        # The drift diagnosis on its own thread, overlapping the tracker (it never changes a box); the
+        # replays of its losses after the last frame.
+        res = run(tracker, seq, [failures, BackgroundObserver(Pipeline(stages))], max_frames=job.max_frames,
+                  seed=job.seed, checkpoints=None if replays is None else replays.config.checkpoints)
     wall = time.perf_counter() - t0
+    report = diagnoser.report(0)
+    if replays is not None and replays.replays:
+        with_replays(report, replays.replays[0])
     extra = {
         "curves": {
             "iou_thresholds": IOU_THRESHOLDS,
@@ -218,7 +233,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
         },
         "thresholds": {"precision_at": PRECISION_AT, "on_track_gamma": ON_TRACK_GAMMA},
         "failed_frames": failures.failed,
-        "diagnosis": diagnoser.report(0),
+        "diagnosis": report,
         "diagnosis_config": diagnoser.config.as_dict(),
         "bench": {
             "jobs": slots,

@@ -265,10 +265,10 @@ class ResultWriter(ProgressObserver):
         if d is not None:
             out["diagnosis"] = report = d.report(j)
             out["diagnosis_config"] = d.config.as_dict()
-            replays = self._replays[j] if j < len(self._replays) else {}
-            for diag in report["diagnoses"]:  # each loss's replays and verdict (the counterfactual issue)
-                if diag["lost_at"] in replays:
-                    diag.update(replays[diag["lost_at"]].as_dict())
+            if j < len(self._replays):  # each loss's replays and verdict
+                from covviz.diagnosis.counterfactual import with_replays
+
+                with_replays(report, self._replays[j])
         return out
 
     def _box_text(self, j: int, boxes: np.ndarray) -> str:

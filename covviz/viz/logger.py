@@ -166,6 +166,17 @@ class LoggerConfig:
         return self.mds_every if self.likelihood_every is None else self.likelihood_every
 
 
+#: Colours of the counterfactual replays' boxes (faint: they sit over the frame).
+REPLAY_COLORS = {
+    "none": (220, 220, 220, 90),
+    "estimate": (255, 170, 60, 130),
+    "search": (80, 200, 255, 130),
+    "model": (220, 90, 255, 130),
+    "search+model": (120, 255, 140, 130),
+    "restart": (80, 200, 255, 130),
+}
+
+
 # --------------------------------------------------------------------------- #
 # per-tracker state
 # --------------------------------------------------------------------------- #
@@ -787,7 +798,7 @@ class RerunLogger(Observer):
         for sp in found.suspects:
             rec.log(p.events, rr.TextLog(viewer_safe(f"[{s.name}] frame {sp.frame}: suspect - {sp.text}"), level="WARN"))
             self._event_record(s, "suspect", sp.frame, "WARN", sp.text, cause=sp.kind)
-            iou_now = found["evidence"].iou if found.get("evidence") is not None else float("nan")
+            iou_now = found.evidence.iou
             if np.isfinite(iou_now):
                 rec.log(p.marker("suspect"), rr.Scalars(iou_now))
             s.dense_until = max(s.dense_until, int(frame.index) + self.config.dense_after)
@@ -967,7 +978,13 @@ class RerunLogger(Observer):
                     f"| {s.name} | {len(r.boxes)} | {r.fps:.1f} | {auc} | {p20} | {miou} | "
                     f"{lost} | {', '.join(map(str, s.drifts)) or '–'} | {s.n_storms} |"
                 )
-            cards = [f"* **{s.name}** {d.text}" for s in self._states for d in s.diagnoses]
+            replays = found.counterfactual
+            for s, rp in zip(self._states, replays):
+                self._log_replays(s, rp, results[s.index])
+            cards = [f"* **{s.name}** {d.text}" + (f" **{replays[s.index][d.lost_at].line()}**"
+                                                     if s.index < len(replays) and d.lost_at in replays[s.index]
+                                                     else "")
+                     for s in self._states for d in s.diagnoses]
             if cards:
                 lines += ["", "## Why it was lost", "", *cards]
             rec.log(
@@ -984,6 +1001,31 @@ class RerunLogger(Observer):
         finally:
             if self.close_on_end:
                 self.close()
+
+    def _log_replays(self, s: _TrackerState, replays: dict, result) -> None:
+        """Each loss's counterfactual replays: faint boxes and an IoU series per fix on its window, the verdict."""
+        rec, p = self.stream, s.paths
+        truth = result.groundtruth
+        for lost_at, rp in sorted(replays.items()):
+            for kind, o in rp.outcomes.items():
+                col = REPLAY_COLORS.get(kind, (200, 200, 200, 110))
+                rec.log(p.replay_iou(kind), rr.SeriesLines(names=[f"{s.name} replay: {kind}"], colors=[col[:3]],
+                                                          widths=[1.0]), static=True)
+                for k, box in enumerate(o.boxes):
+                    n = rp.start + k
+                    rec.set_time(P.FRAME_TIMELINE, sequence=n)
+                    rec.log(p.replay_box(kind), rr.Boxes2D(mins=[box[:2]], sizes=[box[2:]], colors=[col],
+                                                            labels=[kind], radii=0.5, draw_order=12.0))
+                    if n - 1 < len(truth) and np.all(np.isfinite(truth[n - 1])):
+                        rec.log(p.replay_iou(kind), rr.Scalars(float(iou(box[None], truth[n - 1][None])[0])))
+                rec.set_time(P.FRAME_TIMELINE, sequence=rp.end + 1)
+                rec.log(p.replay_box(kind), rr.Clear(recursive=False))
+            rec.set_time(P.FRAME_TIMELINE, sequence=lost_at)
+            text = f"[{s.name}] frame {lost_at}: {rp.line()}"
+            rec.log(p.events, rr.TextLog(viewer_safe(text), level="INFO"))
+            details = {k: v for k, v in rp.as_dict().items() if k != "replay"}
+            details["replay"] = {k: v for k, v in rp.as_dict()["replay"].items() if k != "boxes"}
+            self._event_record(s, "verdict", lost_at, "INFO", rp.line(), cause=rp.verdict, evidence=details)
 
     def close(self) -> None:
         """Send everything logged so far and disconnect the stream (finalises an ``.rrd`` file).

@@ -15,9 +15,11 @@ The entity tree::
     trackers/<name>/video/likelihood Image: the likelihood map around the estimate (placed by a Transform3D)
     trackers/<name>/video/likelihood_peak  Points2D: the best position of that map
     trackers/<name>/video/background LineStrips2D: regions sampled as background for the MDS picture
+    trackers/<name>/video/replay/<fix> Boxes2D: a loss's counterfactual replay under each fix (faint)
     trackers/<name>/weights/...      Scalars: ess (ESS/N), max, survivors; SeriesPoints: resampled
     trackers/<name>/distance/...     Scalars: min, mean (weighted), spread (template cloud)
-    trackers/<name>/metrics/...      Scalars: iou, center_error; SeriesPoints: drift, lost, recovered
+    trackers/<name>/metrics/...      Scalars: iou, center_error; SeriesPoints: drift, lost, recovered;
+                                     replay/<fix>: IoU of each counterfactual replay
     trackers/<name>/terms/share/<term>  Scalars: each likelihood term's share of d_eff² (weighted mean)
     trackers/<name>/terms/moved/<term>  Scalars: weight the term moved (total variation, with vs without it)
     trackers/<name>/why/<series>     Scalars: the diagnosis per frame: d at the truth and the estimate, reach,
@@ -196,6 +198,15 @@ class TrackerPaths:
     @property
     def events(self) -> str:
         return f"{self.root}/events"
+
+    def replay_box(self, kind: str) -> str:
+        """A counterfactual replay's boxes (``none``, ``search``, ``model``, ``estimate``, ``search+model``,
+        ``restart``) on the frames of its window; ``trackers/<name>/video/replay`` toggles them all."""
+        return f"{self.video}/replay/{kind.replace('+', '_')}"
+
+    def replay_iou(self, kind: str) -> str:
+        """IoU with the truth of a replay's boxes, frame by frame (on the IoU plot)."""
+        return f"{self.metrics}/replay/{kind.replace('+', '_')}"
 
     @property
     def event_records(self) -> str:
