@@ -36,6 +36,7 @@ examples:
   covviz track path/to/Car4 --seed 1             # an OTB folder (img/0001.jpg... + groundtruth_rect.txt)
   covviz track clip.mp4 --box 120,80,40,60       # a video (or 'frames/*.png', quoted): give the first box
   covviz track path/to/Car4 --trackers manifold,ipca   # several trackers side by side on the same frames
+  covviz track path/to/Car4 --trackers manifold,manifold@b.json   # two configs of one tracker: manifold@b
   covviz track path/to/Couple --spawn            # watch it live in a Rerun viewer (and save it)
   covviz track --mds-every 5 --save my.rrd       # denser template-cloud pictures, another file
 
@@ -71,7 +72,8 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
         default=["manifold"],
         metavar="NAME[,NAME…]",
         help="tracker(s) to run: manifold (default), manifold-paper (the paper's likelihood: without the quadrant "
-        "term, the derivative normalisation and the colour term), ipca, identity, csrt, kcf, mil, mosse, medianflow, tld",
+        "term, the derivative normalisation and the colour term), ipca, identity, csrt, kcf, mil, mosse, medianflow, tld; "
+        "NAME@FILE.json: a variant with the config of FILE.json, named NAME@FILE (manifold,manifold@b.json)",
     )
     p.add_argument("--particles", type=positive_int, help="number of particles (default: the tracker's own)")
     add_config_arg(p)
@@ -178,8 +180,9 @@ def _check_memory(args, frame_shape) -> None:
         return
     from covviz.resources import available_memory, run_memory
     from covviz.trackers import STOCHASTIC
+    from covviz.trackers.variants import base_name
 
-    n = sum(name in STOCHASTIC for name in args.trackers)
+    n = sum(base_name(name) in STOCHASTIC for name in args.trackers)
     avail = available_memory()
     if not n or avail is None:
         return
