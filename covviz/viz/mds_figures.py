@@ -150,8 +150,8 @@ class MDSFiguresConfig:
 class Separation:
     """Figure (a): coordinates, kinds (``target``/``background``), 1-based frames, the model's name, and its numbers.
 
-    ``silhouette``: of target vs background on the Riemannian distances ``distances``;
-    ``stress``: the embedding's stress-1 against them.
+    ``silhouette``: of target vs background on the Riemannian distances ``distances``
+    between the descriptors ``matrices``; ``stress``: the embedding's stress-1 against them.
     """
 
     coords: np.ndarray
@@ -161,6 +161,7 @@ class Separation:
     distances: np.ndarray | None = None
     silhouette: float = float("nan")
     stress: float = float("nan")
+    matrices: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -300,7 +301,7 @@ def separation_data(
     D = distance_matrix(M)
     X = embed(D, cfg.method)
     sil = silhouette(D, kinds) if 2 <= len(set(kinds)) and len(D) > 2 else float("nan")
-    return Separation(X, kinds, np.array(frames), model.describe(), D, sil, stress1(X, D))
+    return Separation(X, kinds, np.array(frames), model.describe(), D, sil, stress1(X, D), M)
 
 
 class _WalkCollector:
