@@ -170,7 +170,9 @@ class FrameCoverage:
 
     ``nearest``: the target's distance to its nearest template; ``radius``: the
     median distance of the templates to the cloud's Karcher mean; ``ratio``:
-    ``nearest / radius`` (:func:`covviz.embedding.coverage`); ``n``: templates.
+    ``nearest / radius`` (:func:`covviz.embedding.coverage`); ``n``: templates;
+    ``iou``: the tracker's estimate against the truth there (a cloud that lost the
+    target cannot be expected to cover it).
     """
 
     frame: int
@@ -178,6 +180,7 @@ class FrameCoverage:
     radius: float
     ratio: float
     n: int
+    iou: float = float("nan")
 
     @property
     def holds(self) -> bool:
@@ -350,8 +353,9 @@ class _WalkCollector:
                 centre = mean_riemann(T, maxiter=50)
                 to_mean = distance_riemann(T, centre[None])
                 ratio = coverage(to_target, to_mean)
+                on = float(iou(np.asarray(r.box, dtype=np.float64)[None], frame.gt[None])[0])
                 self.coverage.append(FrameCoverage(i + 1, float(to_target.min()), float(np.median(to_mean)),
-                                                   ratio, len(T)))
+                                                   ratio, len(T), on))
                 self.clouds[i + 1], self.targets[i + 1] = T, target
             rest = np.setdiff1d(np.arange(len(T)), near)
             m = min(len(rest), self.cfg.n_generated)
@@ -409,7 +413,8 @@ def claims(sep: Separation | None, walk: RandomWalk | None) -> list[Claim]:
                          bool(sep.silhouette >= SEPARATED_SILHOUETTE)))
     if walk is not None:
         for c in walk.coverage:
-            out.append(Claim("random walk", f"frame {c.frame}: templates' coverage of the target", c.ratio,
+            track = "" if not np.isfinite(c.iou) else f" (estimate's IoU {c.iou:.2f}{'' if c.iou >= 0.5 else ', off track'})"
+            out.append(Claim("random walk", f"frame {c.frame}{track}: templates' coverage of the target", c.ratio,
                              f"nearest template {c.nearest:.3f} / cloud radius {c.radius:.3f}; <= {COVERED:g} "
                              "claimed: well modelled by the generated covariances", c.holds))
     return out
