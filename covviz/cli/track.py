@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
 import time
 from pathlib import Path
@@ -145,16 +144,6 @@ def cmd_track(args) -> int:
     with limit_threads(1):
         return _track(args)
 
-def _warm_kernels(trackers) -> None:
-    """Compile the manifold tracker's kernels before the run (once per install; then loaded from the cache)."""
-    from covviz.model import kernels
-
-    if kernels.JIT_ENABLED and any(getattr(getattr(t, "config", None), "jit", False) for t in trackers):
-        if kernels.kernels_cached():
-            return  # each kernel loads from numba's cache at its first call (only those the run uses)
-        took = kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
-        log.debug("kernels ready in %.1f s", took)
-
 def _check_frames(seq, n_frames: int) -> None:
     """Fail before tracking if a numbered frame is missing among the frames to track.
 
@@ -223,17 +212,13 @@ def _track(args) -> int:
     except BaseException:
         _remove_empty(created)
         raise
-    _warm_kernels(trackers)
-    with contextlib.ExitStack() as stack:  # the trackers' threads end with the run
-        for tr in trackers:
-            if hasattr(tr, "close"):
-                stack.callback(tr.close)
-        return _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created)
+    return _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created)
 
 def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> int:
+    from covviz.api import run_trackers  # shared with covviz.track: warm the kernels, run, close the trackers
     from covviz.experiments.results import ResultWriter
     from covviz.metrics import nothing_to_score
-    from covviz.runner import FreeSpaceGuard, ResultCollector, run_many
+    from covviz.runner import FreeSpaceGuard, ResultCollector
     from covviz.signals import exit_code
 
     def extra(j: int) -> dict:
@@ -253,14 +238,8 @@ def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> in
     t0 = time.perf_counter()
     code = 0
     try:
-        results = run_many(
-            trackers,
-            seq,
-            observers,
-            max_frames=args.max_frames,
-            progress=not args.no_progress,
-            seeds=[args.seed] * len(trackers),
-        )
+        results = run_trackers(trackers, seq, args.seed, observers, max_frames=args.max_frames,
+                               progress=not args.no_progress)
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (covviz.signals): keep what was done
         code = exit_code(exc)
         for note in getattr(exc, "__notes__", []):  # an observer that could not finish (covviz.runner)
