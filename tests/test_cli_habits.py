@@ -75,3 +75,7 @@ def test_the_same_options_are_fine_where_they_act(tmp_path):
     given = given_options(cli.build_parser, ["snapshot", "x.rrd", "--event", "2", "--off=-5,0"])
     assert {"event", "offsets"} <= given  # abbreviations count as given, as argparse reads them
     assert "timeout" not in given and "size" not in given
+
+
+def test_mistyped_event_kind_suggests_the_kind(capsys):
+    assert "did you mean 'diagnosis'?" in error_of(["events", "x.rrd", "--kind", "diagnosys"], capsys)

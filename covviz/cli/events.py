@@ -17,6 +17,10 @@ diagnosis (the cause of a loss, with its evidence), suspect (warnings without gr
 Frames are 1-based, as on the recording's timeline.
 """
 
+#: The kinds of event a recording holds (the epilog says what each is).
+EVENT_KINDS = ("drift", "lost", "recovered", "storm", "storm_end", "diagnosis", "suspect")
+
+
 def add_events_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "events",
@@ -28,7 +32,8 @@ def add_events_parser(sub) -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("recording", type=Path, help="an .rrd file written by 'covviz track'")
-    p.add_argument("--kind", action="append", metavar="KIND", help="only events of this kind (repeatable)")
+    p.add_argument("--kind", action="append", metavar="KIND", choices=EVENT_KINDS,
+                   help=f"only events of this kind (repeatable): {', '.join(EVENT_KINDS)}")
     p.add_argument("--tracker", help="only this tracker's events")
     p.add_argument("--json", action="store_true", help="print JSON (one list, evidence included)")
     p.set_defaults(func=cmd_events)
