@@ -480,7 +480,10 @@ def log_figures(stream, sep: Separation | None, walk: RandomWalk | None, sequenc
 
     note = _model_note(sep, walk)
     numbers = "\n".join(f"    {line}" for line in claims_text(sep, walk, sequence_name))
+    far = 0 if walk is None else int((~_viewer_keep(walk)).sum())
     text = (MDS_DESCRIPTION + (f"\n\n**Observation model** (both figures): {note}.\n" if note else "")
+            + (f"\n{far} background descriptors of the random walk lie far outside it and are left out of the "
+               "view (the PNG's inset shows them).\n" if far else "")
             + (f"\n**The claims, measured** (FAILS where a claim does not hold here):\n\n{numbers}\n" if numbers else ""))
     stream.log(P.DESCRIPTION, rr.TextDocument(viewer_safe(text), media_type=rr.MediaType.MARKDOWN), static=True)
     if sep is not None:
@@ -495,6 +498,7 @@ def log_figures(stream, sep: Separation | None, walk: RandomWalk | None, sequenc
     if walk is not None:
         frames = _walk_frames(walk)
         greens = _frame_greens(frames)
+        keep = _viewer_keep(walk)
         m = walk.kinds == "initial"
         if m.any():
             stream.log(
@@ -506,7 +510,7 @@ def log_figures(stream, sep: Separation | None, walk: RandomWalk | None, sequenc
             base = f"{P.FIGURE_RANDOM_WALK}/frame_{f:04d}"
             for kind, radius, colour in (("template", -2.0, greens[f]), ("near", -4.5, greens[f]),
                                          ("estimate", -5.0, greens[f]), ("background", -3.0, BLUE)):
-                mk = (walk.kinds == kind) & (walk.frames == f)
+                mk = (walk.kinds == kind) & (walk.frames == f) & keep
                 if mk.any():
                     stream.log(f"{base}/{kind}", rr.Points2D(walk.coords[mk], colors=[colour], radii=[radius],
                                                              show_labels=False), static=True)
@@ -517,6 +521,21 @@ def log_figures(stream, sep: Separation | None, walk: RandomWalk | None, sequenc
                     rr.Points2D(walk.coords[mk], colors=[RED], radii=[-6.0], labels=[f"{f}"], show_labels=True),
                     static=True,
                 )
+
+
+def _viewer_keep(walk: RandomWalk) -> np.ndarray:
+    """Which points of the walk the viewer shows.
+
+    The view frames everything it holds: background far from the templates would shrink the walk
+    to one clump of labels, so only the background within twice the walk's extent is logged.
+    """
+    keep = np.ones(len(walk.kinds), dtype=bool)
+    mb = walk.kinds == "background"
+    if mb.any() and (~mb).any():
+        lo, hi = _focus_box(walk.coords, ~mb, 1.6)
+        lo, hi = lo - (hi - lo) / 2, hi + (hi - lo) / 2
+        keep = ~mb | ((walk.coords >= lo) & (walk.coords <= hi)).all(axis=1)
+    return keep
 
 
 def _model_note(sep: Separation | None, walk: RandomWalk | None) -> str:
@@ -689,6 +708,19 @@ def _draw_walk_cloud(ax, walk: RandomWalk) -> None:
 WALK_BOX_ASPECT = 1.0
 
 
+def _focus_box(coords: np.ndarray, mask: np.ndarray, aspect: float = WALK_BOX_ASPECT) -> tuple:
+    """``(lo, hi)`` corners of a box of width/height ``aspect`` around ``coords[mask]``, 15% padded."""
+    focus = coords[mask]
+    lo, hi = focus.min(axis=0), focus.max(axis=0)
+    pad = 0.15 * max(float((hi - lo).max()), 1e-6)
+    lo, hi = lo - pad, hi + pad
+    # equal axis units: grow the narrower side about its centre
+    width = max(float(hi[0] - lo[0]), aspect * float(hi[1] - lo[1]))
+    size = np.array([width, width / aspect])
+    centre = (lo + hi) / 2
+    return centre - size / 2, centre + size / 2
+
+
 def _zoom_to_walk(ax, walk: RandomWalk, background_colour, focus_mask: np.ndarray) -> None:
     """Frame the points of ``focus_mask``; background descriptors far outside go to an inset.
 
@@ -703,16 +735,9 @@ def _zoom_to_walk(ax, walk: RandomWalk, background_colour, focus_mask: np.ndarra
     if not focus_mask.any():
         return
     focus = walk.coords[focus_mask]
-    lo, hi = focus.min(axis=0), focus.max(axis=0)
-    pad = 0.15 * max(float((hi - lo).max()), 1e-6)
-    lo, hi = lo - pad, hi + pad
-    # equal axis units in a box about as wide as the panel: grow the narrower side about its centre
-    width = max(float(hi[0] - lo[0]), WALK_BOX_ASPECT * float(hi[1] - lo[1]))
-    size = np.array([width, width / WALK_BOX_ASPECT])
-    centre = (lo + hi) / 2
-    lo, hi = centre - size / 2, centre + size / 2
+    lo, hi = _focus_box(walk.coords, focus_mask)
     # a strip on the right for the inset, so it covers no data
-    hi = hi + np.array([0.45 * size[0], 0.0])
+    hi = hi + np.array([0.45 * (hi - lo)[0], 0.0])
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal", adjustable="box")
