@@ -172,7 +172,9 @@ class FrameCoverage:
     median distance of the templates to the cloud's Karcher mean; ``ratio``:
     ``nearest / radius`` (:func:`covviz.embedding.coverage`); ``n``: templates;
     ``iou``: the tracker's estimate against the truth there (a cloud that lost the
-    target cannot be expected to cover it).
+    target cannot be expected to cover it); ``nearest_estimate``: the distance of the
+    descriptor at the estimate's own box to its nearest template (does the cloud cover
+    even what the tracker observes where it is?).
     """
 
     frame: int
@@ -181,6 +183,7 @@ class FrameCoverage:
     ratio: float
     n: int
     iou: float = float("nan")
+    nearest_estimate: float = float("nan")
 
     @property
     def holds(self) -> bool:
@@ -335,12 +338,13 @@ class _WalkCollector:
             return
         if i == 0 and r.estimate_template is not None:
             self._add(expm(r.estimate_template), "initial", 1)
-        target = None
+        target = estimate = None
         if frame.gt is not None and self.model is not None:
             bg = _background_boxes(frame.gt, frame.image.shape, self.cfg.n_walk_background,
                                    self.cfg.max_background_overlap, self.rng)
-            C = _region_descriptors(self.model, frame.image, np.concatenate([frame.gt[None], bg]))
-            target = C[0]
+            C = _region_descriptors(self.model, frame.image, np.concatenate([frame.gt[None], bg,
+                                                                            np.asarray(r.box)[None]]))
+            target, estimate, C = C[0], C[-1], C[:-1]
             self._add(C[:1], "target", i + 1)
             if len(bg):
                 self._add(C[1:], "background", i + 1)
@@ -354,8 +358,9 @@ class _WalkCollector:
                 to_mean = distance_riemann(T, centre[None])
                 ratio = coverage(to_target, to_mean)
                 on = float(iou(np.asarray(r.box, dtype=np.float64)[None], frame.gt[None])[0])
+                own = float(distance_riemann(T, estimate[None]).min())
                 self.coverage.append(FrameCoverage(i + 1, float(to_target.min()), float(np.median(to_mean)),
-                                                   ratio, len(T), on))
+                                                   ratio, len(T), on, own))
                 self.clouds[i + 1], self.targets[i + 1] = T, target
             rest = np.setdiff1d(np.arange(len(T)), near)
             m = min(len(rest), self.cfg.n_generated)
@@ -416,7 +421,8 @@ def claims(sep: Separation | None, walk: RandomWalk | None) -> list[Claim]:
             track = "" if not np.isfinite(c.iou) else f" (estimate's IoU {c.iou:.2f}{'' if c.iou >= 0.5 else ', off track'})"
             out.append(Claim("random walk", f"frame {c.frame}{track}: templates' coverage of the target", c.ratio,
                              f"nearest template {c.nearest:.3f} / cloud radius {c.radius:.3f}; <= {COVERED:g} "
-                             "claimed: well modelled by the generated covariances", c.holds))
+                             "claimed: well modelled by the generated covariances; the estimate's own observation: "
+                             f"nearest {c.nearest_estimate:.3f}", c.holds))
     return out
 
 
