@@ -50,6 +50,7 @@ __all__ = [
     "embed",
     "procrustes_align",
     "silhouette",
+    "silhouette_by_group",
     "smacof_mds",
     "stress",
     "stress1",
@@ -165,6 +166,20 @@ def silhouette(D: np.ndarray, labels) -> float:
     if not 2 <= len(np.unique(labels)) <= len(D) - 1:
         raise ValueError("a silhouette needs at least 2 groups and fewer groups than points")
     return float(silhouette_score(D, labels, metric="precomputed"))
+
+
+def silhouette_by_group(D: np.ndarray, labels) -> dict:
+    """Mean silhouette of each group's points on ``D`` (:func:`sklearn.metrics.silhouette_samples`).
+
+    Tells which group makes a low :func:`silhouette`: a tight target cloud beside a
+    spread-out background has a high target and a low background value.
+    """
+    from sklearn.metrics import silhouette_samples
+
+    D = _check_distances(D)
+    labels = np.asarray(labels)
+    s = silhouette_samples(D, labels, metric="precomputed")
+    return {str(g): float(s[labels == g].mean()) for g in np.unique(labels)}
 
 
 def coverage(to_target: np.ndarray, to_mean: np.ndarray) -> float:

@@ -85,6 +85,9 @@ def test_separation_numbers_are_those_of_the_riemannian_distances(sep):
     D = pairwise_by_pairs(sep.matrices)
     np.testing.assert_allclose(sep.distances, D, rtol=1e-6, atol=1e-8)
     assert sep.silhouette == pytest.approx(silhouette_by_definition(D, sep.kinds), abs=1e-6)
+    n_t = (sep.kinds == "target").sum()
+    overall = (n_t * sep.by_group["target"] + (len(D) - n_t) * sep.by_group["background"]) / len(D)
+    assert overall == pytest.approx(sep.silhouette, abs=1e-9)  # the groups' means make the whole
     assert sep.stress == pytest.approx(stress1_by_definition(sep.coords, D), rel=1e-6)
     assert set(sep.kinds) == {"target", "background"}
 

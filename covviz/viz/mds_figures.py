@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from covviz.embedding import coverage, distance_matrix, embed, silhouette, stress1
+from covviz.embedding import coverage, distance_matrix, embed, silhouette, silhouette_by_group, stress1
 from covviz.errors import InputError
 from covviz.metrics import iou, valid_rows
 from covviz.model.observation import ObservationModel, box_to_pose
@@ -162,6 +162,7 @@ class Separation:
     silhouette: float = float("nan")
     stress: float = float("nan")
     matrices: np.ndarray | None = None
+    by_group: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -306,8 +307,10 @@ def separation_data(
     kinds = np.array(kinds)
     D = distance_matrix(M)
     X = embed(D, cfg.method)
-    sil = silhouette(D, kinds) if 2 <= len(set(kinds)) and len(D) > 2 else float("nan")
-    return Separation(X, kinds, np.array(frames), model.describe(), D, sil, stress1(X, D), M)
+    two = 2 <= len(set(kinds)) and len(D) > 2
+    sil = silhouette(D, kinds) if two else float("nan")
+    return Separation(X, kinds, np.array(frames), model.describe(), D, sil, stress1(X, D), M,
+                      silhouette_by_group(D, kinds) if two else {})
 
 
 class _WalkCollector:
@@ -442,6 +445,9 @@ def claims_text(sep: Separation | None, walk: RandomWalk | None, sequence_name: 
         lines.append(f"{head}target vs background ({int((sep.kinds == 'target').sum())} target, "
                      f"{int((sep.kinds == 'background').sum())} background descriptors; {tracker}'s model)")
         lines += [f"  {c.line()}" for c in claims(sep, None)]
+        if sep.by_group:
+            lines.append("  mean silhouette of the target's points " + f"{sep.by_group.get('target', np.nan):.3f}, "
+                         f"of the background's {sep.by_group.get('background', np.nan):.3f}")
         if np.isfinite(sep.stress):
             lines.append(f"  {_stress_note(sep.stress)}")
     if walk is not None:
