@@ -55,7 +55,6 @@ IGNORED = [
     (["track", "--no-save", "--mds-every", "3"], "--mds-every"),
     (["track", "--no-save", "--likelihood-every", "3"], "--likelihood-every"),
     (["track", "--trackers", "csrt", "--particles", "5"], "--particles"),
-    (["bench", "ROOT", "--trackers", "identity", "--particles", "5"], "--particles"),
     (["bench", "ROOT", "--cluster", "local:2", "--jobs", "2"], "--jobs"),
     (["tune", "ROOT", "--trials", "1", "--cluster", "local:2", "--jobs", "2"], "--jobs"),
     (["mds", "--no-png", "--png-dir", "somewhere"], "--png-dir"),

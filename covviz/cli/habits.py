@@ -136,10 +136,9 @@ IGNORED = {
         (("mds_every", "likelihood_every"), lambda a: not _recorded(a), _UNRECORDED),
         (("particles",), _no_stochastic, _PARTICLES),
     ],
-    "bench": [
-        (("particles",), _no_stochastic, _PARTICLES),
-        (("jobs",), lambda a: a.cluster is not None, _JOBS),
-    ],
+    # (bench --particles with deterministic trackers only is not ignored: the manifest keeps it, and a
+    # folder made with other particles is refused on resume)
+    "bench": [(("jobs",), lambda a: a.cluster is not None, _JOBS)],
     "tune": [(("jobs",), lambda a: a.cluster is not None, _JOBS)],
     "mds": [
         (("png_dir",), lambda a: a.no_png, "--png-dir and --no-png contradict each other; give one"),

@@ -756,7 +756,7 @@ def _zoom_to_walk(ax, walk: RandomWalk, background_colour, focus_mask: np.ndarra
     outside = ~((walk.coords[mb] >= lo) & (walk.coords[mb] <= hi)).all(axis=1)
     if not outside.any():
         return
-    inset = ax.inset_axes((0.71, 0.64, 0.28, 0.34))
+    inset = ax.inset_axes((0.71, 0.60, 0.28, 0.33))
     inset.scatter(*walk.coords[mb].T, s=3, color=background_colour, edgecolors="none")
     inset.scatter(*focus.T, s=3, color="0.85", edgecolors="none")
     inset.add_patch(mpatches.Rectangle(lo, *(hi - lo), fill=False, edgecolor="white", linewidth=0.8))
