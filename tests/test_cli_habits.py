@@ -78,3 +78,14 @@ def test_the_same_options_are_fine_where_they_act(tmp_path):
 
 def test_mistyped_event_kind_suggests_the_kind(capsys):
     assert "did you mean 'diagnosis'?" in error_of(["events", "x.rrd", "--kind", "diagnosys"], capsys)
+
+
+def test_events_of_a_mistyped_tracker_suggest_the_tracker(tmp_path, capsys):
+    import covviz
+
+    rrd = tmp_path / "occ.rrd"
+    covviz.track("synthetic:occlusion", trackers="identity", max_frames=90, save=rrd)
+    assert cli.main(["events", str(rrd), "--tracker", "identiti"]) == 2
+    err = capsys.readouterr().err
+    assert "did you mean 'identity'?" in err and "events of: identity" in err
+    assert cli.main(["events", str(rrd), "--tracker", "identity"]) == 0

@@ -48,6 +48,13 @@ def cmd_events(args) -> int:
     if args.kind:
         events = [e for e in events if e["kind"] in args.kind]
     if args.tracker:
+        names = sorted({e["tracker"] for e in events})
+        if args.tracker not in names and names:
+            from covviz.cli.common import UsageError
+            from covviz.trackers.variants import did_you_mean
+
+            raise UsageError(f"--tracker {args.tracker}: no events of that tracker in {args.recording}"
+                             f"{did_you_mean(args.tracker, names)} (events of: {', '.join(names)})")
         events = [e for e in events if e["tracker"] == args.tracker]
     if args.json:
         print(json.dumps(events, indent=1))
