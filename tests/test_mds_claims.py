@@ -115,9 +115,16 @@ def test_coverage_of_each_frame_against_distances_computed_directly(walk):
         assert near.sum() == CFG.n_near  # the paper's caption: the 10 most similar to the truth
 
 
-def test_walk_stress_is_the_embeddings(walk):
-    # the walk keeps no matrices for every point; its stress is checked through the same function on the separation
-    assert 0 <= walk.stress < 1
+def test_walk_numbers_against_direct_distances(walk):
+    D = pairwise_by_pairs(walk.matrices)
+    np.testing.assert_allclose(walk.distances, D, rtol=1e-6, atol=1e-8)
+    assert walk.stress == pytest.approx(stress1_by_definition(walk.coords, D), rel=1e-6)
+    for c in walk.coverage:  # the green crosses are the templates nearest to the truth, none of the others nearer
+        target = walk.targets[c.frame]
+        d = {k: [pr_distance(m, target) for m in walk.matrices[(walk.kinds == k) & (walk.frames == c.frame)]]
+             for k in ("near", "template")}
+        assert min(d["near"]) == pytest.approx(c.nearest, rel=1e-6)
+        assert max(d["near"]) <= min(d["template"]) + 1e-9
 
 
 def test_a_claim_that_fails_is_printed_as_failing(sep, walk):

@@ -199,8 +199,9 @@ class RandomWalk:
     templates most similar to the truth), ``estimate``, ``target``,
     ``background``. ``coverage``: one :class:`FrameCoverage` per chosen frame
     with ground truth and a spread cloud; ``clouds``: every particle's template
-    (SPD) at those frames, and ``targets`` the target descriptor there (for
-    checking the numbers).
+    (SPD) at those frames, and ``targets`` the target descriptor there;
+    ``matrices`` every embedded point's SPD matrix and ``distances`` their
+    Riemannian distances (for checking the numbers).
     """
 
     coords: np.ndarray
@@ -212,6 +213,8 @@ class RandomWalk:
     tracker: str = "manifold"
     clouds: dict = field(default_factory=dict)
     targets: dict = field(default_factory=dict)
+    matrices: np.ndarray | None = None
+    distances: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -409,7 +412,7 @@ def random_walk_data(
                          "there is nothing to draw (a constant image?)")
     X = embed(D, cfg.method)
     return RandomWalk(X, np.array(col.kinds), np.array(col.frames), col.model, tuple(col.coverage), stress1(X, D),
-                      cfg.tracker, col.clouds, col.targets)
+                      cfg.tracker, col.clouds, col.targets, M, D)
 
 
 def claims(sep: Separation | None, walk: RandomWalk | None) -> list[Claim]:
