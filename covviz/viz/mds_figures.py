@@ -584,11 +584,10 @@ def _claim_block(fig, lines: list[str], y: float, size: float = 7.0) -> None:
 
     step = 1.35 * size / 72 / fig.get_figheight()
     for line in lines:
-        for k, part in enumerate(textwrap.wrap(line, 150, subsequent_indent="    ")):
+        for part in textwrap.wrap(line, 150, subsequent_indent="    "):
             fig.text(0.02, y, part, ha="left", va="top", fontsize=size, family="monospace",
                      color="#ffa040" if "FAILS" in line else "0.85")
             y -= step
-            del k
 
 
 def save_figures(
