@@ -45,9 +45,12 @@ from covviz.model.spd import pairwise_distance
 __all__ = [
     "AlignedMDS",
     "classical_mds",
+    "coverage",
     "distance_matrix",
     "embed",
     "procrustes_align",
+    "silhouette",
+    "silhouette_by_group",
     "smacof_mds",
     "stress",
     "stress1",
@@ -139,6 +142,73 @@ def stress1(X: np.ndarray, D: np.ndarray) -> float:
     D = np.asarray(D, dtype=np.float64)
     den = float((D * D).sum())
     return float(np.sqrt(2.0 * stress(X, D) / den)) if den > 0 else 0.0
+
+
+def silhouette(D: np.ndarray, labels) -> float:
+    """Mean silhouette of ``labels`` on the distance matrix ``D`` itself (not on an embedding).
+
+    ``(b - a) / max(a, b)`` per point, ``a`` its mean distance to its own group,
+    ``b`` to the nearest other group (:func:`sklearn.metrics.silhouette_score`
+    with ``metric="precomputed"``): 1 far apart, 0 touching, < 0 mixed. Below
+    0.25 a grouping has "no substantial structure" (Kaufman & Rousseeuw,
+    *Finding Groups in Data*, 1990).
+
+    Parameters
+    ----------
+    D : ndarray, shape (n, n)
+    labels : array-like, shape (n,)
+        At least two groups, at most ``n - 1``.
+    """
+    from sklearn.metrics import silhouette_score
+
+    D = _check_distances(D)
+    labels = np.asarray(labels)
+    if not 2 <= len(np.unique(labels)) <= len(D) - 1:
+        raise ValueError("a silhouette needs at least 2 groups and fewer groups than points")
+    return float(silhouette_score(D, labels, metric="precomputed"))
+
+
+def silhouette_by_group(D: np.ndarray, labels) -> dict:
+    """Mean silhouette of each group's points on ``D`` (:func:`sklearn.metrics.silhouette_samples`).
+
+    Tells which group makes a low :func:`silhouette`: a tight target cloud beside a
+    spread-out background has a high target and a low background value.
+    """
+    from sklearn.metrics import silhouette_samples
+
+    D = _check_distances(D)
+    labels = np.asarray(labels)
+    s = silhouette_samples(D, labels, metric="precomputed")
+    return {str(g): float(s[labels == g].mean()) for g in np.unique(labels)}
+
+
+def coverage(to_target: np.ndarray, to_mean: np.ndarray) -> float:
+    """How well a cloud of templates covers a target: nearest template over the cloud's typical radius.
+
+    ``min(to_target) / median(to_mean)``: the target's distance to its nearest
+    template over the median distance of the templates to the cloud's mean. At
+    most 1: the target lies as close to some template as a typical template lies
+    to the cloud's centre (covered); well above 1: the cloud missed it.
+
+    Parameters
+    ----------
+    to_target : ndarray, shape (n,)
+        Distances of the n templates to the target.
+    to_mean : ndarray, shape (n,)
+        Distances of the same templates to the cloud's mean.
+
+    Returns
+    -------
+    float
+        ``inf`` when the cloud has no spread and misses the target; 0 when it hits it exactly.
+    """
+    to_target, to_mean = np.asarray(to_target, dtype=np.float64), np.asarray(to_mean, dtype=np.float64)
+    if not len(to_target) or to_target.shape != to_mean.shape:
+        raise ValueError("coverage needs one distance to the target and one to the mean per template")
+    nearest, radius = float(to_target.min()), float(np.median(to_mean))
+    if radius > 0:
+        return nearest / radius
+    return 0.0 if nearest == 0 else float("inf")
 
 
 def smacof_mds(

@@ -152,7 +152,8 @@ s = np.random.SeedSequence(1).spawn(2)
 
 
 #: Modules of covviz/viz that compute or drive the viewer without logging: they stay free of rerun.
-RERUN_FREE_VIZ = ("covviz.viz", "covviz.viz.defaults", "covviz.viz.paths", "covviz.viz.mds_figures", "covviz.viz.snapshot")
+RERUN_FREE_VIZ = ("covviz.viz", "covviz.viz.defaults", "covviz.viz.paths", "covviz.viz.mds_figures",
+                  "covviz.viz.why_manifold", "covviz.viz.snapshot")
 
 
 def core_modules() -> list[str]:

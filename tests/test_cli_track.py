@@ -195,7 +195,8 @@ BAD_INPUTS = [_missing, _no_frames, _empty_folder, _unreadable_first, _unreadabl
 def test_bad_input_exit_2_with_one_line(tmp_path, case):
     args, hint = case(tmp_path)
     out = tmp_path / "results"
-    code, _stdout, stderr = run_main(track(*args, "--out", str(out), "--particles", "10"))
+    particles = [] if "identity" in args else ["--particles", "10"]  # identity has none: --particles is refused
+    code, _stdout, stderr = run_main(track(*args, "--out", str(out), *particles))
     assert code == 2
     lines = [line for line in stderr.splitlines() if line.strip()]
     assert len(lines) == 1, stderr

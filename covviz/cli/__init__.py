@@ -25,6 +25,7 @@ from pathlib import Path
 from covviz.cli.bench import add_bench_parser
 from covviz.cli.common import EXIT_BAD_INPUT, _q
 from covviz.cli.events import add_events_parser
+from covviz.cli.habits import CovvizParser, check_ignored, given_options, glue_negative_values, unrecognized
 from covviz.cli.mds import add_mds_parser
 from covviz.cli.report import add_report_parser
 from covviz.cli.snapshot import add_snapshot_parser
@@ -35,7 +36,7 @@ from covviz.errors import InputError
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = CovvizParser(
         prog="covviz",
         description="A tracker on the Riemannian manifold of covariance matrices, "
         "and a Rerun app to see why it holds on or drifts.",
@@ -65,16 +66,8 @@ Run 'covviz COMMAND --help' for the options and examples of each command.""",
     return parser
 
 def _glue_negative_values(argv: list[str]) -> list[str]:
-    """``--offsets -5,0,5`` as ``--offsets=-5,0,5``: argparse takes a value starting with '-' for an option."""
-    out: list[str] = []
-    it = iter(argv)
-    for a in it:
-        if a == "--offsets":
-            nxt = next(it, None)
-            out.append(a if nxt is None else f"{a}={nxt}")
-        else:
-            out.append(a)
-    return out
+    """``--box -5,10,40,60`` as ``--box=-5,10,40,60``: argparse takes a value starting with '-' for an option."""
+    return glue_negative_values(argv)
 
 def _unquoted_glob(parser: argparse.ArgumentParser, args, extra: list[str]) -> None:
     """Unrecognised arguments: argparse's error, with a hint when the shell expanded an unquoted glob."""
@@ -88,14 +81,15 @@ def _unquoted_glob(parser: argparse.ArgumentParser, args, extra: list[str]) -> N
             file=sys.stderr,
         )
         raise SystemExit(EXIT_BAD_INPUT)
-    parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    unrecognized(parser, getattr(args, "command", None), extra)
 
 def main(argv: list[str] | None = None) -> int:
     from covviz.signals import exit_code, stop_signals
 
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    args, extra = parser.parse_known_args(_glue_negative_values(argv))
+    glued = _glue_negative_values(argv)
+    args, extra = parser.parse_known_args(glued)
     if extra:
         _unquoted_glob(parser, args, extra)
     args.argv = argv  # written into recordings
@@ -103,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s: %(message)s"
     )
     try:
+        check_ignored(args, given_options(build_parser, glued))  # an option that would do nothing: an error
         # SIGTERM stops a run as Ctrl-C does (results of the frames done, a valid recording),
         # with exit code 143; a second signal never cuts short the saving of the first.
         with stop_signals():

@@ -15,6 +15,7 @@ examples:
   covviz bench ../shared/sequences --trackers manifold,ipca,csrt,kcf,mil --seeds 3 --jobs 2 --out runs/bench
   covviz bench ../shared/sequences/Car4 --trackers manifold --seeds 5 --max-frames 200 --out runs/car4
   covviz bench ../shared/sequences --trackers manifold --config runs/tune/best.json --out runs/tuned
+  covviz bench ../shared/sequences --trackers manifold,manifold@runs/tune/best.json --out runs/ab   # manifold@best
   covviz bench /data/sequences --cluster tcp://scheduler:8786 --out runs/bench   # on a Dask cluster
   covviz bench ../shared/sequences --cluster local:2 --out runs/bench          # a local Dask cluster
   covviz report runs/bench --out docs/results.md     # rebuild the report elsewhere
@@ -51,7 +52,8 @@ def add_bench_parser(sub) -> argparse.ArgumentParser:
         dest="trackers",
         default="manifold,ipca,csrt,kcf,mil",
         metavar="NAME[,NAME…]",
-        help=f"trackers to run (default: manifold,ipca,csrt,kcf,mil); from {', '.join(TRACKERS)}",
+        help=f"trackers to run (default: manifold,ipca,csrt,kcf,mil); from {', '.join(TRACKERS)}; "
+        "NAME@FILE.json: a variant with the config of FILE.json, named NAME@FILE",
     )
     p.add_argument(
         "--seeds", type=positive_int, default=3, metavar="K", help="seeds per stochastic tracker (default 3)"

@@ -60,14 +60,35 @@ positive_int = _int_at_least(1, "a positive integer")
 
 nonneg_int = _int_at_least(0, "an integer >= 0")
 
-def tracker_list(text: str) -> list[str]:
-    """argparse type for ``--trackers a,b``: the checked names."""
-    from covviz.trackers import tracker_names
+class TrackerList(list):
+    """The names of ``--trackers`` (``manifold``, ``manifold@b``), with each one's spec in ``specs``."""
+
+    specs: dict
+
+
+def tracker_list(text: str) -> TrackerList:
+    """argparse type for ``--trackers a,b,a@FILE.json``: the checked names (variants named after their file).
+
+    Unknown names get a did-you-mean; a name given twice is refused
+    (:func:`covviz.trackers.variants.parse_specs`).
+    """
+    from covviz.trackers.variants import parse_specs
 
     try:
-        return tracker_names(text.split(","))
+        specs = parse_specs(text.split(","))
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+    out = TrackerList(s.name for s in specs)
+    out.specs = {s.name: s for s in specs}
+    return out
+
+
+def tracker_specs(names) -> list:
+    """The :class:`~covviz.trackers.variants.TrackerSpec` of each name of :func:`tracker_list` (or plain names)."""
+    from covviz.trackers.variants import parse_specs
+
+    specs = getattr(names, "specs", None)
+    return [specs[n] for n in names] if specs else parse_specs(names)
 
 
 # --------------------------------------------------------------------------- #
@@ -217,9 +238,15 @@ def read_config(path: Path | None, trackers: list[str]):
     import json
 
     from covviz.trackers import CONFIGURABLE
+    from covviz.trackers.variants import VARIANT_SEP
 
     if path is None:
         return None
+    if any(VARIANT_SEP in t for t in trackers) and not {t for t in trackers if VARIANT_SEP not in t} & CONFIGURABLE:
+        raise UsageError(
+            f"--config would be ignored: every configurable tracker of {','.join(trackers)} has its own @FILE.json; "
+            "drop --config, or add the tracker it is for"
+        )
     if not set(trackers) & CONFIGURABLE:
         raise UsageError(
             f"--config sets a ManifoldConfig: it needs one of the trackers {', '.join(sorted(CONFIGURABLE))}"
@@ -238,16 +265,17 @@ def read_config(path: Path | None, trackers: list[str]):
         raise UsageError(f"--config {path}: {exc}") from None
 
 def _make_trackers(names: list[str], seed: int, particles: int | None, config_path: Path | None = None) -> list:
-    """The trackers of a run, each with the stream of ``seed`` (:func:`covviz.trackers.tracker_rng`)."""
-    from covviz.trackers import CONFIGURABLE, make_tracker
+    """The trackers of a run, each with the stream of ``seed`` (:func:`covviz.trackers.tracker_rng`).
+
+    A variant (``manifold@b.json``) runs with its own config file; the others with ``--config``.
+    """
+    from covviz.trackers.variants import make_from_spec
 
     config = read_config(config_path, names)
     try:
-        return [
-            make_tracker(name, seed=seed, n_particles=particles, config=config if name in CONFIGURABLE else None)
-            for name in names
-        ]
-    except ValueError as exc:  # a config value the tracker refuses (e.g. --particles)
+        specs = tracker_specs(names)
+        return [make_from_spec(s, seed=seed, n_particles=particles, config=config) for s in specs]
+    except ValueError as exc:  # a config value the tracker refuses (e.g. --particles), a bad variant file
         raise UsageError(str(exc)) from None
 
 def _q(path) -> str:

@@ -17,6 +17,10 @@ diagnosis (the cause of a loss, with its evidence), suspect (warnings without gr
 Frames are 1-based, as on the recording's timeline.
 """
 
+#: The kinds of event a recording holds (the epilog says what each is).
+EVENT_KINDS = ("drift", "lost", "recovered", "storm", "storm_end", "diagnosis", "suspect")
+
+
 def add_events_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "events",
@@ -28,7 +32,8 @@ def add_events_parser(sub) -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("recording", type=Path, help="an .rrd file written by 'covviz track'")
-    p.add_argument("--kind", action="append", metavar="KIND", help="only events of this kind (repeatable)")
+    p.add_argument("--kind", action="append", metavar="KIND", choices=EVENT_KINDS,
+                   help=f"only events of this kind (repeatable): {', '.join(EVENT_KINDS)}")
     p.add_argument("--tracker", help="only this tracker's events")
     p.add_argument("--json", action="store_true", help="print JSON (one list, evidence included)")
     p.set_defaults(func=cmd_events)
@@ -43,6 +48,13 @@ def cmd_events(args) -> int:
     if args.kind:
         events = [e for e in events if e["kind"] in args.kind]
     if args.tracker:
+        names = sorted({e["tracker"] for e in events})
+        if args.tracker not in names and names:
+            from covviz.cli.common import UsageError
+            from covviz.trackers.variants import did_you_mean
+
+            raise UsageError(f"--tracker {args.tracker}: no events of that tracker in {args.recording}"
+                             f"{did_you_mean(args.tracker, names)} (events of: {', '.join(names)})")
         events = [e for e in events if e["tracker"] == args.tracker]
     if args.json:
         print(json.dumps(events, indent=1))

@@ -9,9 +9,10 @@ REPORT_EPILOG = """\
 examples:
   covviz report runs/bench                           # runs/bench/report.md + runs/bench/img/*.png
   covviz report runs/bench --out docs/results.md     # docs/results.md + docs/img/*.png
+  covviz report runs/bench --latex                   # also runs/bench/report.tex: the tables in LaTeX
 
 The report is rebuilt from the result files only; nothing is re-run. Figures go to
-img/ next to the markdown file and are linked with relative paths.
+img/ next to the markdown file, each as PNG (linked with a relative path), SVG and PDF.
 """
 
 def add_report_parser(sub) -> argparse.ArgumentParser:
@@ -37,14 +38,18 @@ def add_report_parser(sub) -> argparse.ArgumentParser:
         help="markdown to append to the report as is, e.g. the ablation that benchmarks/ablation.py writes "
         "(repeatable)",
     )
+    p.add_argument("--latex", action="store_true",
+                   help="also write the tables as LaTeX (booktabs), REPORT.tex beside the markdown")
     p.set_defaults(func=cmd_report)
     return p
 
 def cmd_report(args) -> int:
     from covviz.experiments.report import write_report
 
-    path = write_report(args.dir, args.out, append=args.append)
+    path = write_report(args.dir, args.out, append=args.append, latex=args.latex)
     print(f"report: {path}")
+    if args.latex:
+        print(f"tables in LaTeX: {path.with_suffix('.tex')}")
     return 0
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
 import time
 from pathlib import Path
@@ -23,12 +22,10 @@ from covviz.cli.common import (
     nonneg_int,
     parse_box,
     positive_int,
-    read_config,
     tracker_list,
 )
 from covviz.data.sequences import open_sequence
 from covviz.errors import InputError
-from covviz.trackers import CONFIGURABLE, make_tracker
 
 TRACK_EPILOG = """\
 examples:
@@ -38,6 +35,7 @@ examples:
   covviz track path/to/Car4 --seed 1             # an OTB folder (img/0001.jpg... + groundtruth_rect.txt)
   covviz track clip.mp4 --box 120,80,40,60       # a video (or 'frames/*.png', quoted): give the first box
   covviz track path/to/Car4 --trackers manifold,ipca   # several trackers side by side on the same frames
+  covviz track path/to/Car4 --trackers manifold,manifold@b.json   # two configs of one tracker: manifold@b
   covviz track path/to/Couple --spawn            # watch it live in a Rerun viewer (and save it)
   covviz track --mds-every 5 --save my.rrd       # denser template-cloud pictures, another file
 
@@ -73,7 +71,8 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
         default=["manifold"],
         metavar="NAME[,NAME…]",
         help="tracker(s) to run: manifold (default), manifold-paper (the paper's likelihood: without the quadrant "
-        "term, the derivative normalisation and the colour term), ipca, identity, csrt, kcf, mil, mosse, medianflow, tld",
+        "term, the derivative normalisation and the colour term), ipca, identity, csrt, kcf, mil, mosse, medianflow, tld; "
+        "NAME@FILE.json: a variant with the config of FILE.json, named NAME@FILE (manifold,manifold@b.json)",
     )
     p.add_argument("--particles", type=positive_int, help="number of particles (default: the tracker's own)")
     add_config_arg(p)
@@ -169,17 +168,6 @@ def cmd_track(args) -> int:
     with limit_threads(1):
         return _track(args)
 
-def _warm_kernels(trackers) -> None:
-    """Compile the manifold tracker's kernels before the run (once per install; then loaded from the cache)."""
-    from covviz.model import kernels
-    from covviz.trackers import CONFIGURABLE
-
-    if kernels.JIT_ENABLED and any(t.config.observation.jit for t in trackers if t.name in CONFIGURABLE):
-        if kernels.kernels_cached():
-            return  # each kernel loads from numba's cache at its first call (only those the run uses)
-        took = kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
-        log.debug("kernels ready in %.1f s", took)
-
 def _check_frames(seq, n_frames: int) -> None:
     """Fail before tracking if a numbered frame is missing among the frames to track.
 
@@ -205,8 +193,9 @@ def _check_memory(args, frame_shape) -> None:
         return
     from covviz.resources import available_memory, run_memory
     from covviz.trackers import STOCHASTIC
+    from covviz.trackers.variants import base_name
 
-    n = sum(name in STOCHASTIC for name in args.trackers)
+    n = sum(base_name(name) in STOCHASTIC for name in args.trackers)
     avail = available_memory()
     if not n or avail is None:
         return
@@ -250,12 +239,7 @@ def _track(args) -> int:
     except BaseException:
         _remove_empty(created)
         raise
-    _warm_kernels(trackers)
-    with contextlib.ExitStack() as stack:  # the trackers' threads end with the run
-        for tr in trackers:
-            if hasattr(tr, "close"):
-                stack.callback(tr.close)
-        return _run_tracking(args, seq, trackers, replays, recorders, rrd, created)
+    return _run_tracking(args, seq, trackers, replays, recorders, rrd, created)
 
 def _counterfactuals(args, seq, n_frames: int, trackers):
     """The replays of every loss (on by default when the frames after the first have ground truth)."""
@@ -265,18 +249,17 @@ def _counterfactuals(args, seq, n_frames: int, trackers):
 
     if args.no_counterfactual or not np.isfinite(seq.groundtruth[1:n_frames]).all(axis=1).any():
         return None
-    config = read_config(getattr(args, "config", None), args.trackers)
-    factories = [
-        (lambda name=name: make_tracker(name, seed=args.seed, n_particles=args.particles,
-                                        config=config if name in CONFIGURABLE else None))
-        for name in args.trackers
-    ]
+    config_path = getattr(args, "config", None)
+    # Fresh trackers for those that cannot be forked (a restart at the truth): made as this run's.
+    factories = [(lambda name=name: _make_trackers([name], args.seed, args.particles, config_path)[0])
+                 for name in args.trackers]
     return Counterfactuals(trackers, factories)
 
 def _run_tracking(args, seq, trackers, replays, recorders, rrd, created) -> int:
+    from covviz.api import run_trackers  # shared with covviz.track: warm the kernels, run, close the trackers
     from covviz.experiments.results import ResultWriter
     from covviz.metrics import nothing_to_score
-    from covviz.runner import FreeSpaceGuard, ResultCollector, run_many
+    from covviz.runner import FreeSpaceGuard, ResultCollector
     from covviz.signals import exit_code
 
     # The results are on disk while the run goes (every second, and at the end): what a kill, a
@@ -291,15 +274,9 @@ def _run_tracking(args, seq, trackers, replays, recorders, rrd, created) -> int:
     t0 = time.perf_counter()
     code = 0
     try:
-        results = run_many(
-            trackers,
-            seq,
-            observers,
-            max_frames=args.max_frames,
-            progress=not args.no_progress,
-            seeds=[args.seed] * len(trackers),
-            checkpoints=None if replays is None else replays.config.checkpoints,
-        )
+        results = run_trackers(trackers, seq, args.seed, observers, max_frames=args.max_frames,
+                               progress=not args.no_progress,
+                               checkpoints=None if replays is None else replays.config.checkpoints)
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (covviz.signals): keep what was done
         code = exit_code(exc)
         for note in getattr(exc, "__notes__", []):  # an observer that could not finish (covviz.runner)

@@ -436,13 +436,16 @@ class Counterfactuals(Observer):
         for j, res in enumerate(results):
             out: dict[int, Replay] = {}
             ring = start.checkpoints[j] if j < len(start.checkpoints) else None
+            forkable = ring is not None and start.trackers[j].interventions
             for lost_at, began in self.losses[j] if j < len(self.losses) else ():
-                if ring is not None:
+                if forkable:
                     rp = replay_loss(self.trackers[j], ring, start.sequence, res.boxes, truth, lost_at, began,
                                      res.seed, self.config)
-                else:
+                elif self.factories[j] is not None:
                     rp = restart_loss(self.factories[j], start.sequence, res.boxes, truth, lost_at, began,
                                       self.config)
+                else:
+                    rp = None  # a tracker of the user's that can neither be forked nor made again
                 if rp is not None:
                     out[lost_at] = rp
             self.replays.append(out)

@@ -190,6 +190,7 @@ def plan_jobs(
     particles: int | None = None,
     max_frames: int | None = None,
     config: dict | None = None,
+    variant_configs: dict[str, dict] | None = None,
     counterfactual: bool = False,
 ) -> list[Job]:
     """Every (sequence, tracker, seed) job, longest first.
@@ -203,6 +204,8 @@ def plan_jobs(
         Seeds ``0 … seeds-1`` for the stochastic trackers; one run (seed None) for the others.
     config : dict, optional
         A ManifoldConfig's ``as_dict()`` for the trackers of :data:`covviz.trackers.CONFIGURABLE`.
+    variant_configs : dict, optional
+        Variant name (``manifold@b``) -> the ``as_dict()`` of its own config file, used instead of ``config``.
 
     Returns
     -------
@@ -210,19 +213,30 @@ def plan_jobs(
     among equals (they are the slow ones), then by name: the longest jobs start
     first so that the last to finish are short.
     """
-    from covviz.trackers import CONFIGURABLE, STOCHASTIC
+    from covviz.trackers import STOCHASTIC
+    from covviz.trackers.variants import base_name
 
-    text = None if config is None else _canonical(config)
     jobs = []
     for name, (path, n) in sequences.items():
         n_run = n if max_frames is None else min(n, max_frames)
         for tr in trackers:
-            for s in range(seeds) if tr in STOCHASTIC else [None]:
-                jobs.append(Job(name, path, n_run, tr, s, particles, max_frames, text if tr in CONFIGURABLE else None,
-                                counterfactual))
+            text = _config_text(tr, config, variant_configs)
+            for s in range(seeds) if base_name(tr) in STOCHASTIC else [None]:
+                jobs.append(Job(name, path, n_run, tr, s, particles, max_frames, text, counterfactual))
     return sorted(
-        jobs, key=lambda j: (-j.n_frames, j.tracker not in STOCHASTIC, j.sequence, j.tracker, j.seed or 0)
+        jobs, key=lambda j: (-j.n_frames, base_name(j.tracker) not in STOCHASTIC, j.sequence, j.tracker, j.seed or 0)
     )
+
+
+def _config_text(tracker: str, config: dict | None, variant_configs: dict[str, dict] | None) -> str | None:
+    """The config (JSON text) a job of ``tracker`` runs with: its variant's file, else ``config`` if it takes one."""
+    from covviz.trackers import CONFIGURABLE
+    from covviz.trackers.variants import base_name
+
+    own = (variant_configs or {}).get(tracker)
+    if own is not None:
+        return _canonical(own)
+    return _canonical(config) if config is not None and base_name(tracker) in CONFIGURABLE else None
 
 
 def _jsonable(obj):
@@ -237,13 +251,13 @@ def _canonical(obj) -> str:
     return json.dumps(obj, sort_keys=True, allow_nan=True)
 
 
-def tracker_configs(trackers: Seq[str], particles: int | None, config: dict | None = None) -> dict[str, dict]:
+def tracker_configs(
+    trackers: Seq[str], particles: int | None, config: dict | None = None, variant_configs: dict | None = None
+) -> dict[str, dict]:
     """The config each tracker would run with (builds each once; no frame is read)."""
-    from covviz.trackers import CONFIGURABLE
-
     out = {}
     for name in trackers:
-        job = Job("", "", 0, name, 0, particles, None, _canonical(config) if config and name in CONFIGURABLE else None)
+        job = Job("", "", 0, name, 0, particles, None, _config_text(name, config, variant_configs))
         try:
             tr = job.make_tracker()
         except ValueError:
@@ -489,6 +503,8 @@ def bench(
     executor : Executor, optional
         Run the jobs with this one (:class:`LocalExecutor`, a Dask one) instead of
         making one from ``jobs``/``cluster``; it is not closed.
+    counterfactual : bool
+        Replay every loss inside its job (:mod:`covviz.diagnosis.counterfactual`).
 
     Returns
     -------
@@ -499,15 +515,16 @@ def bench(
     ------
     BenchError
         Empty root, unknown tracker, a folder from another run, a corrupt result.
-    counterfactual : bool
-        Replay every loss inside its job (:mod:`covviz.diagnosis.counterfactual`).
     """
-    from covviz.trackers import tracker_names
+    from covviz.trackers.variants import VARIANT_SEP, parse_specs
 
     try:
-        trackers = tracker_names(trackers)
+        specs = parse_specs(trackers)
+        # a variant (manifold@b.json) runs with its own file, named manifold@b in results and report
+        variant_configs = {s.name: s.config_dict() for s in specs if s.config_path is not None}
     except ValueError as exc:
         raise BenchError(str(exc)) from None
+    trackers = [s.name for s in specs]
     if seeds < 1 or jobs < 1 or retries < 0:
         raise BenchError("--seeds and --jobs must be at least 1, --retries at least 0")
     root = Path(root).resolve()
@@ -515,12 +532,13 @@ def bench(
     if config is not None:
         from covviz.trackers import CONFIGURABLE
 
-        if not set(trackers) & CONFIGURABLE:
-            raise BenchError(f"--config sets a ManifoldConfig: it needs one of {', '.join(sorted(CONFIGURABLE))}")
+        if not {t for t in trackers if VARIANT_SEP not in t} & CONFIGURABLE:
+            raise BenchError(f"--config sets a ManifoldConfig: it needs one of {', '.join(sorted(CONFIGURABLE))} "
+                             "without an @FILE.json of its own")
 
     sequences = read_sequences(root, exclude=[out])
 
-    configs = tracker_configs(trackers, particles, config)
+    configs = tracker_configs(trackers, particles, config, variant_configs)
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".covviz-write-test"
@@ -531,15 +549,16 @@ def bench(
     with lock_results_folder(out):
         return _bench_locked(
             root, out, sequences, trackers, configs, seeds, jobs, max_frames, particles, force, progress,
-            report, config, cluster, retries, executor, counterfactual,
+            report, config, cluster, retries, executor, variant_configs, counterfactual,
         )
 
 
 def _bench_locked(
     root, out, sequences, trackers, configs, seeds, jobs, max_frames, particles, force, progress, report,
-    config, cluster, retries, executor, counterfactual=False,
+    config, cluster, retries, executor, variant_configs=None, counterfactual=False,
 ) -> dict:
     from covviz.trackers import STOCHASTIC
+    from covviz.trackers.variants import base_name
 
     manifest = {
         "format": MANIFEST_FORMAT,
@@ -547,7 +566,7 @@ def _bench_locked(
         "root": str(root),
         "sequences": {k: v[1] for k, v in sequences.items()},
         "trackers": trackers,
-        "stochastic": sorted(set(trackers) & STOCHASTIC),
+        "stochastic": sorted(t for t in trackers if base_name(t) in STOCHASTIC),
         "seeds": seeds,
         "seed_rule": "stochastic trackers: seeds 0..seeds-1, "
         "rng = default_rng(SeedSequence(seed).spawn(1)[0]); "
@@ -557,10 +576,10 @@ def _bench_locked(
     }
     old = None if force else read_manifest(out)  # --force also replaces a corrupt manifest
     manifest = _merge_manifest(old, manifest, out, force)
-    manifest["stochastic"] = sorted(set(manifest["trackers"]) & STOCHASTIC)
+    manifest["stochastic"] = sorted(t for t in manifest["trackers"] if base_name(t) in STOCHASTIC)
     manifest["configs"] = {**((old or {}).get("configs") or {}), **configs}
 
-    all_jobs = plan_jobs(sequences, trackers, seeds, particles, max_frames, config, counterfactual)
+    all_jobs = plan_jobs(sequences, trackers, seeds, particles, max_frames, config, variant_configs, counterfactual)
     todo = all_jobs if force else [j for j in all_jobs if not _is_done(j, out, configs[j.tracker])]
     skipped = len(all_jobs) - len(todo)
     write_manifest(out, manifest)

@@ -85,13 +85,18 @@ class Job:
     def make_tracker(self):
         """The job's tracker, with the stream of its seed (:func:`covviz.trackers.tracker_rng`)."""
         from covviz.trackers import make_tracker
+        from covviz.trackers.variants import base_name
 
         config = None
         if self.config is not None:
             from covviz.trackers.manifold import ManifoldConfig
 
             config = ManifoldConfig.from_dict(json.loads(self.config))
-        return make_tracker(self.tracker, seed=self.seed, n_particles=self.particles, config=config)
+        # a variant (manifold@b) is its registry tracker with its own config, under its own name
+        tr = make_tracker(base_name(self.tracker), seed=self.seed, n_particles=self.particles, config=config)
+        if base_name(self.tracker) != self.tracker:
+            tr.name = self.tracker
+        return tr
 
 
 @dataclass(frozen=True)

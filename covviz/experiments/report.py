@@ -10,7 +10,11 @@ written by :func:`covviz.experiments.results.save_result`; never runs a tracker.
   precision plots (curves averaged over sequences);
 * ``img/bench_on_track.png``: the paper's figure, bar charts of the track
   duration rate (``r_on_track``) and the track accuracy (``rms_on_track``) per
-  sequence, ours (:data:`OURS`) against IPCA (:data:`BASELINE`).
+  sequence, ours (:data:`OURS`) against IPCA (:data:`BASELINE`), its legend
+  beside the bars;
+* every figure also as SVG and PDF beside the PNG (:data:`FIGURE_FORMATS`), for a paper;
+* with ``latex=True`` (``covviz report --latex``), ``report.tex`` beside the
+  markdown: the same tables in LaTeX (booktabs).
 
 Figures go to ``img/`` next to the markdown file and are linked relatively, so
 ``covviz report runs/bench --out docs/results.md`` writes ``docs/img/…``.
@@ -51,6 +55,8 @@ BASELINE = "ipca"
 STD_DDOF = 1
 #: Resolution of the PNG figures.
 DPI = 110
+#: Every figure is written in each of these formats (the markdown links the first).
+FIGURE_FORMATS = ("png", "svg", "pdf")
 
 #: (metric key in the result JSON, column title, higher is better)
 COLUMNS = (
@@ -601,6 +607,8 @@ def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
             "",
             f"![track duration rate and accuracy]({rel(figs['on_track'])})",
             "",
+            "Every figure is also beside its PNG as SVG and PDF (same name), for a paper.",
+            "",
         ]
     else:
         L += [f"Needs `{OURS}` or `{BASELINE}` results; this bench has neither.", ""]
@@ -659,7 +667,7 @@ def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
     return "\n".join(L).rstrip("\n") + "\n"
 
 
-def write_report(results_dir: str | Path, out: str | Path | None = None, append=()) -> Path:
+def write_report(results_dir: str | Path, out: str | Path | None = None, append=(), latex: bool = False) -> Path:
     """Write the report of the bench in ``results_dir``; return the markdown path.
 
     Parameters
@@ -672,6 +680,8 @@ def write_report(results_dir: str | Path, out: str | Path | None = None, append=
     append : sequence of paths
         Markdown files appended to the report as they are (read before
         anything is written: a missing one is an error and the report is kept).
+    latex : bool
+        Also write the tables as LaTeX (``report.tex`` beside the markdown; :func:`render_latex`).
     """
     d = Path(results_dir)
     md_path = Path(out) if out is not None else d / REPORT_NAME
@@ -696,6 +706,11 @@ def write_report(results_dir: str | Path, out: str | Path | None = None, append=
     tmp = md_path.with_name(md_path.name + ".part")
     tmp.write_text(text)
     os.replace(tmp, md_path)
+    if latex:
+        tex = md_path.with_suffix(".tex")
+        tmp = tex.with_name(tex.name + ".part")
+        tmp.write_text(render_latex(summary))
+        os.replace(tmp, tex)
     return md_path
 
 
@@ -766,9 +781,7 @@ def _figures(img_dir: Path, sequences, trackers, by, thr) -> dict[str, Path]:
             )
             ax.grid(alpha=0.3)
             ax.legend(loc="lower left" if kind == "success" else "lower right", fontsize=8, title=label)
-            p = img_dir / f"{FIGURE_PREFIX}{kind}.png"
-            fig.savefig(p, dpi=DPI)
-            out[kind] = p
+            out[kind] = _save_figure(fig, img_dir / f"{FIGURE_PREFIX}{kind}")
 
     # The paper's figure: r_on_track and rms_on_track per sequence, ours against the baseline
     pair = [t for t in (OURS, BASELINE) if t in trackers]
@@ -804,10 +817,80 @@ def _figures(img_dir: Path, sequences, trackers, by, thr) -> dict[str, Path]:
                     ax.text(xi, 0, "n/a", ha="center", va="bottom", fontsize=6, rotation=90, color=colours[t])
             ax.set_title(title, fontsize=10)
             ax.grid(axis="y", alpha=0.3)
-            ax.legend(fontsize=8)
         axes[0].set_ylim(0, 1.05)
         axes[1].set_xticks(x, sequences, rotation=45, ha="right", fontsize=8)
-        p = img_dir / f"{FIGURE_PREFIX}on_track.png"
-        fig.savefig(p, dpi=DPI)
-        out["on_track"] = p
+        # one legend for both panels, beside them: never over a bar
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside right upper", fontsize=8)
+        out["on_track"] = _save_figure(fig, img_dir / f"{FIGURE_PREFIX}on_track")
     return out
+
+
+def _save_figure(fig, stem: Path) -> Path:
+    """``fig`` as ``stem.png`` (at :data:`DPI`), ``stem.svg`` and ``stem.pdf``; returns the PNG's path."""
+    paths = [stem.with_name(f"{stem.name}.{fmt}") for fmt in FIGURE_FORMATS]
+    for path in paths:
+        fig.savefig(path, dpi=DPI)
+    return paths[0]
+
+
+# --------------------------------------------------------------------------- #
+# LaTeX tables (covviz report --latex)
+# --------------------------------------------------------------------------- #
+def _tex(text: str) -> str:
+    """Plain text as LaTeX (the characters the report's names and numbers use)."""
+    out = str(text)
+    for a, b in (("\\", r"\textbackslash{}"), ("_", r"\_"), ("&", r"\&"), ("%", r"\%"), ("#", r"\#"),
+                 ("±", r"$\pm$"), ("†", r"$^\dagger$"), ("↑", r"$\uparrow$"), ("↓", r"$\downarrow$"),
+                 ("—", "--")):
+        out = out.replace(a, b)
+    return out
+
+
+def _latex_table(rows, caption: str, label: str) -> list[str]:
+    """One table of :func:`_table`'s rows in LaTeX (booktabs), the best mean of each metric in bold."""
+    head = ["tracker", "runs"] + [title for _, title, _ in COLUMNS] + ["fps", "failed frames"]
+    best = {}
+    for key, _, higher in COLUMNS:
+        means = [r[2][key].mean for r in rows if np.isfinite(r[2][key].mean)]
+        if len(rows) > 1 and means:
+            best[key] = max(means) if higher else min(means)
+    L = [r"\begin{table}[t]", r"\centering", r"\small", r"\begin{tabular}{ll" + "r" * (len(head) - 2) + "}",
+         r"\toprule", " & ".join(_tex(h) for h in head) + r" \\", r"\midrule"]
+    for name, runs, stats, fps, failed in rows:
+        cells = [r"\texttt{" + _tex(name) + "}", _tex(runs)]
+        for key, _, _ in COLUMNS:
+            c = _tex(stats[key].fmt())
+            if key in best and np.isfinite(stats[key].mean) and round(stats[key].mean, 3) == round(best[key], 3):
+                c = r"\textbf{" + c + "}"
+            cells.append(c)
+        cells.append(_tex(fps.fmt(_fps_digits(fps.mean))))
+        cells.append(_tex(failed.fmt(0)) if np.isfinite(failed.mean) else "--")
+        L.append(" & ".join(cells) + r" \\")
+    L += [r"\bottomrule", r"\end{tabular}", r"\caption{" + caption + "}", r"\label{" + label + "}",
+          r"\end{table}", ""]
+    return L
+
+
+def render_latex(summary: Summary) -> str:
+    """The report's tables in LaTeX (needs ``\\usepackage{booktabs}``): overall, success AUC per sequence,
+    and one per sequence; mean $\\pm$ std over seeds as in the markdown."""
+    L = ["% covviz report --latex: the tables of report.md (needs \\usepackage{booktabs})", ""]
+    L += _latex_table(summary.overall, f"Overall, averaged over the {len(summary.sequences)} sequences "
+                      r"(mean $\pm$ std over seeds; best in bold).", "tab:covviz-overall")
+    trackers = summary.trackers
+    L += [r"\begin{table}[t]", r"\centering", r"\small", r"\begin{tabular}{lr" + "r" * len(trackers) + "}",
+          r"\toprule", "sequence & frames & " + " & ".join(r"\texttt{" + _tex(t) + "}" for t in trackers) + r" \\",
+          r"\midrule"]
+    for s in summary.sequences:
+        cells = []
+        for t in trackers:
+            rs = summary.by.get((s, t), [])
+            cells.append(_tex(Stat.of(r.metrics.get("success_auc") for r in rs).fmt()) if rs else "--")
+        L.append(f"{_tex(s)} & {summary.seq_frames.get(s, '?')} & " + " & ".join(cells) + r" \\")
+    L += [r"\bottomrule", r"\end{tabular}", r"\caption{Success AUC per sequence.}",
+          r"\label{tab:covviz-auc}", r"\end{table}", ""]
+    for s in summary.sequences:
+        if summary.per_sequence.get(s):
+            L += _latex_table(summary.per_sequence[s], f"{_tex(s)} ({summary.seq_frames.get(s, '?')} frames).",
+                              f"tab:covviz-{''.join(c if c.isalnum() else '-' for c in s)}")
+    return "\n".join(L)

@@ -22,7 +22,7 @@ import numpy as np
 from covviz.model.image import check_init_box
 from covviz.records import FrameRecord
 
-__all__ = ["IdentityTracker", "Intervention", "SnapshotUnsupported", "Tracker", "TrackerInfo", "tracker_info"]
+__all__ = ["IdentityTracker", "Intervention", "SnapshotUnsupported", "Snapshottable", "Tracker", "TrackerInfo", "tracker_info"]
 
 
 @runtime_checkable
@@ -40,6 +40,11 @@ class Tracker(Protocol):
 
     def config_dict(self) -> dict:
         """The tracker's configuration, JSON-serialisable."""
+
+
+@runtime_checkable
+class Snapshottable(Protocol):
+    """A tracker whose state can be saved and restored (set ``snapshots = True`` to say so)."""
 
     def snapshot(self) -> Any:
         """An immutable, picklable state between two frames (raise :class:`SnapshotUnsupported` if impossible)."""
@@ -97,6 +102,9 @@ class TrackerInfo:
         Whether ``snapshot()``/``restore()`` work (the counterfactual replays need them).
     particles : bool
         Whether it is a particle filter (its records carry weights).
+    interventions : bool
+        Whether it takes an :class:`Intervention` (an ``intervention`` attribute read by ``update()``):
+        the counterfactual replays fix its search, model or estimate.
     """
 
     name: str
@@ -104,6 +112,7 @@ class TrackerInfo:
     model: Any = None
     snapshots: bool = False
     particles: bool = False
+    interventions: bool = False
 
 
 def tracker_info(tracker) -> TrackerInfo:
@@ -115,6 +124,7 @@ def tracker_info(tracker) -> TrackerInfo:
         model=getattr(tracker, "observation_model", None),
         snapshots=bool(getattr(tracker, "snapshots", False)),
         particles=bool(getattr(tracker, "particle_filter", False)),
+        interventions=hasattr(tracker, "intervention"),
     )
 
 
@@ -126,6 +136,7 @@ class IdentityTracker:
     name = "identity"
     snapshots = True
     observation_model = None
+    intervention = None  # nothing to fix: it never moves
 
     def __init__(self, config=None, rng=None) -> None:
         self._box: np.ndarray | None = None
