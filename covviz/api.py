@@ -231,7 +231,7 @@ def _diagnosis(diagnoser, replays, j: int) -> dict:
     if replays is not None and j < len(replays.replays):
         from covviz.diagnosis.counterfactual import with_replays
 
-        with_replays(report, replays.replays[j])
+        with_replays(report, replays.replays[j], diagnoser.config.tie_ratio)
     return report
 
 

@@ -110,6 +110,8 @@ def _print_diagnosis(found: dict | None) -> None:
         print(f"  {d['text']}")
         if "verdict" in d:
             print(f"    {replay_line(d)}")
+            if d.get("verdict_note"):
+                print(f"    note: {d['verdict_note']}")
     sus = found.get("suspects", [])
     if sus:
         kinds = sorted({sp["kind"] for sp in sus})

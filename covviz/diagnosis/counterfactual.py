@@ -220,11 +220,39 @@ def verdict_of(outcomes: dict) -> tuple[str, tuple[str, ...]]:
     return (keeps[0] if keeps else "none helps"), keeps
 
 
-def with_replays(report: dict, replays: dict) -> dict:
-    """A diagnosis report (``Diagnoser.report``) with each loss's replays and verdict added, in place."""
+#: The per-frame label (:data:`covviz.diagnosis.drift.LABELS`) each verdict agrees with.
+VERDICT_LABEL = {"search": "search", "model": "model", "search+model": "model", "estimate": "estimate"}
+
+
+def with_replays(report: dict, replays: dict, tie_ratio: float = 1.2) -> dict:
+    """A diagnosis report (``Diagnoser.report``) with each loss's replays and verdict added, in place.
+
+    Each diagnosis also says whether its per-frame labels (model / search / estimate failures)
+    agree with the verdict (``labels_agree``, and ``verdict_note`` in words when they do not),
+    and a tie between its two strongest causes is broken by the verdict
+    (:func:`covviz.diagnosis.drift.rerank`; ``tie_broken_by``).
+    """
+    from covviz.diagnosis.drift import rerank
+
     for diag in report["diagnoses"]:
-        if diag["lost_at"] in replays:
-            diag.update(replays[diag["lost_at"]].as_dict())
+        rp = replays.get(diag["lost_at"])
+        if rp is None:
+            continue
+        diag.update(rp.as_dict())
+        before = diag.get("cause")
+        rerank(diag, rp.verdict, tie_ratio)
+        notes = []
+        if diag.get("tie_broken_by"):
+            notes.append(f"{before.replace('_', ' ')} and {diag['cause'].replace('_', ' ')} held about equally; "
+                         f"the verdict ({rp.verdict}) favours {diag['cause'].replace('_', ' ')}")
+        labels = {k: v for k, v in (diag.get("labels") or {}).items() if v}
+        top = max(labels, key=labels.get) if labels else None
+        want = VERDICT_LABEL.get(rp.verdict)
+        diag["labels_agree"] = bool(want is None or top is None or top == want)
+        if not diag["labels_agree"]:
+            notes.append(f"the per-frame labels said {top} ({labels[top]} frames), the replays say {rp.verdict}")
+        if notes:
+            diag["verdict_note"] = "; ".join(notes)
     return report
 
 

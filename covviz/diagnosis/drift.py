@@ -120,8 +120,16 @@ class DiagnosisConfig:
     target_hold: float = 2.5
     #: ... and the region the tracker followed looks like the target too (at most this from the baseline) ...
     distractor_look: float = 2.0
-    #: ... and the likelihood scores that region at least as well as the truth (d_eff margin).
+    #: ... and the likelihood scores that region at least as well as the truth (d_eff margin) ...
     distractor_margin: float = 0.0
+    #: ... and it looks like the target clearly more than the scene around the target does: at most this
+    #: share of the nearest surrounding region's distance (median over the baseline frames). A street of
+    #: textured regions is not a look-alike.
+    distractor_background: float = 0.75
+    #: The surrounding regions are measured every this many frames.
+    scene_every: int = 4
+    #: Two causes whose rules held this close (strength ratio) are a tie; the replays' verdict breaks it.
+    tie_ratio: float = 1.2
     #: appearance: on some frame, the target's look moved at least this far from its baseline ...
     appearance_change: float = 2.5
     #: ... and every quadrant at least this far: a change of the whole target, not of a part.
@@ -259,6 +267,10 @@ class FrameEvidence:
     truth_Q: np.ndarray | None = None
     truth_box: np.ndarray | None = None
     estimate_C: np.ndarray | None = None
+    #: The nearest of the regions around the truth (same size, 1.5 boxes away), as far from the target's
+    #: look as it is (whole-region ``d``): how much the scene around it resembles the target. Every
+    #: ``scene_every``-th frame; ``nan`` on the others.
+    background_look: float = float("nan")
     scene_C: np.ndarray | None = None
     contain: float = float("nan")
     term_gaps: dict | None = None
@@ -408,7 +420,7 @@ class _LookChanges:
         nan = float("nan")
         out.evidence = {"target_change_max": nan, "target_change_at_loss": nan, "estimate_look_at_loss": nan,
                         "quadrant_change_max": nan, "quadrant_change_min": nan, "light_log2_max": nan,
-                        "baseline_noise": nan}
+                        "baseline_noise": nan, "background_look": nan}
         rows = [h for h in win if h.truth_C is not None]
         if len(base) < 1 or not rows:
             return out
@@ -436,6 +448,7 @@ class _LookChanges:
             "quadrant_change_min": float(out.q[k].min()),
             "light_log2_max": float(np.nanmax(np.abs(out.light))) if np.isfinite(out.light).any() else nan,
             "baseline_noise": out.noise_c,
+            "background_look": _nanmedian([h.background_look for h in base + rows[:1]]),
         }
         return out
 
@@ -450,6 +463,11 @@ class _LookChanges:
     @property
     def last_est(self) -> float:
         return self.evidence["estimate_look_at_loss"]
+
+    @property
+    def background(self) -> float:
+        """How close the scene around the target came to its look (``nan`` if never measured)."""
+        return self.evidence["background_look"]
 
     def partial(self, jump: float, hold: float, ratio: float) -> int | None:
         """The first frame where some quadrant moved at least ``jump`` while another stayed within ``hold``
@@ -518,6 +536,8 @@ def diagnose(history: list[FrameEvidence], lost_at: int, drift_began: int, cfg: 
     # ---- scale: centre held, size wrong (on some frame before the loss: the size went wrong first) ----
     ev["scale_ratio_at_loss"] = float(last.scale_ratio)
     ev["centre_error_at_loss"] = float(last.centre_error)
+    ratios = _finite([max(h.scale_ratio, 1 / h.scale_ratio) for h in win if h.scale_ratio > 0])
+    ev["scale_ratio_max"] = float(ratios.max()) if len(ratios) else float("nan")
     for h in win:
         r = h.scale_ratio
         if np.isfinite(r) and r > 0 and max(r, 1 / r) >= cfg.scale_ratio and h.contain >= cfg.scale_contain:
@@ -542,6 +562,7 @@ def diagnose(history: list[FrameEvidence], lost_at: int, drift_began: int, cfg: 
         and look.last_est <= max(cfg.distractor_look, cfg.noise_factor * look.noise_c)
         and (not np.isfinite(margin) or margin >= cfg.distractor_margin)
         and last.iou < cfg.on_track_iou
+        and not (look.background > 0 and look.last_est > cfg.distractor_background * look.background)
     ):
         held.append("distractor")
     # occlusion: on some frame, some quadrants changed while another held
@@ -571,12 +592,110 @@ def diagnose(history: list[FrameEvidence], lost_at: int, drift_began: int, cfg: 
             ev[f"gap_{k}"] = float(np.mean([h.term_gaps.get(k, 0.0) for h in model_frames]))
 
     labels = {k: sum(1 for h in win if h.label == k) for k in LABELS[1:]}
-    ordered = [c for c in CAUSES if c in held]
+    strength = _strengths(ev, look, cfg, hold_c, jump)
+    ev.update({f"strength_{c}": s for c, s in strength.items()})
+    # every rule that held: the causes in the scene first, the one whose evidence passed its threshold by
+    # the most first; the filter's own state (impoverishment) only when nothing in the scene explains it
+    ordered = sorted((c for c in CAUSES if c in held),
+                     key=lambda c: (c in FILTER_STATES, -strength.get(c, 1.0), CAUSES.index(c)))
     cause = ordered[0] if ordered else "unknown"
+    if not ordered:  # the nearest miss, for the card
+        near = [(c, s) for c, s in strength.items() if np.isfinite(s) and s > 0]
+        if near:
+            c, s = max(near, key=lambda cs: cs[1])
+            ev["nearest_rule"], ev["nearest_rule_share"] = CAUSES.index(c), float(s)
     text = _card(cause, ordered[1:], lost_at, drift_began, ev, labels, last)
     window = (int(win[0].frame), int(win[-1].frame))
     baseline = (int(base[0].frame), int(base[-1].frame)) if base else (0, 0)
     return Diagnosis(cause, tuple(ordered[1:]), int(lost_at), int(drift_began), window, baseline, ev, labels, text)
+
+
+#: Offsets (box widths, box heights) of the regions around the truth that say how target-like the scene is.
+SURROUND = ((-1.5, 0.0), (1.5, 0.0), (0.0, -1.2), (0.0, 1.2), (-1.5, -1.2), (1.5, 1.2), (-1.5, 1.2), (1.5, -1.2))
+
+
+def _surrounding_boxes(gt: np.ndarray, shape) -> np.ndarray:
+    """The regions of the truth's size around it (:data:`SURROUND`) that lie inside the frame, ``(m, 4)``."""
+    x, y, w, h = gt
+    H, W = shape[:2]
+    boxes = np.array([[x + dx * w, y + dy * h, w, h] for dx, dy in SURROUND])
+    ok = (boxes[:, 0] >= 0) & (boxes[:, 1] >= 0) & (boxes[:, 0] + w <= W) & (boxes[:, 1] + h <= H)
+    return boxes[ok]
+
+
+def scale_ratio_of(ev: dict) -> float:
+    """The largest size ratio (estimate over truth, or its inverse) of the window."""
+    r = ev.get("scale_ratio", float("nan"))
+    held = max(r, 1 / r) if np.isfinite(r) and r > 0 else float("nan")
+    return float(np.nanmax([held, ev.get("scale_ratio_max", float("nan"))]))
+
+
+def _nanmedian(values) -> float:
+    v = np.asarray([x for x in values if x is not None], dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if len(v) else float("nan")
+
+
+def _strengths(ev: dict, look, cfg: DiagnosisConfig, hold_c: float, jump: float) -> dict[str, float]:
+    """How far each cause's evidence went past its threshold, as a ratio (> 1: the rule's main test passed).
+
+    The ranking of the causes that held, and the nearest miss when none did. One number per rule,
+    its main comparison: fast motion the truth's jump over ``fast_motion``; scale the size ratio over
+    ``scale_ratio``; illumination the brightness change over ``light_ratio`` (in log2); distractor
+    how much closer the estimate's look is to the target's than the threshold it had to beat; occlusion
+    the quadrant change over the jump it had to reach; appearance the whole region's change over
+    ``appearance_change``; impoverishment the low-ESS frames over ``impoverished_frames``.
+    """
+    def ratio(v, thr):
+        return float(v / thr) if np.isfinite(v) and thr > 0 else float("nan")
+
+    scale = scale_ratio_of(ev)
+    look_thr = max(cfg.distractor_look, cfg.noise_factor * look.noise_c)
+    if look.background > 0:
+        look_thr = min(look_thr, cfg.distractor_background * look.background)
+    est = ev.get("estimate_look_at_loss", float("nan"))
+    return {
+        "fast_motion": ratio(ev.get("truth_motion_max", float("nan")), cfg.fast_motion),
+        "scale": ratio(scale, cfg.scale_ratio),
+        "illumination": ratio(ev.get("light_log2_max", float("nan")), np.log2(cfg.light_ratio)),
+        "distractor": ratio(look_thr, est) if np.isfinite(est) and est > 0 else float("nan"),
+        "occlusion": ratio(ev.get("quadrant_change_max", float("nan")), jump),
+        "appearance": ratio(ev.get("target_change_max", float("nan")),
+                            max(cfg.appearance_change, cfg.noise_factor * look.noise_c)),
+        "impoverishment": ratio(ev.get("frames_ess_low", float("nan")), cfg.impoverished_frames),
+    }
+
+
+#: Causes that describe the filter rather than the scene: named only when no cause in the scene held.
+FILTER_STATES = ("impoverishment",)
+
+#: Which causes each verdict of the replays favours when two causes tie (a search failure: the target
+#: went where the particles did not; a model failure: the target's look, or a look-alike, misled it).
+VERDICT_FAVOURS = {
+    "search": ("fast_motion", "impoverishment"),
+    "model": ("occlusion", "distractor", "appearance", "illumination"),
+    "search+model": ("occlusion", "distractor", "appearance", "illumination"),
+}
+
+
+def rerank(diagnosis: dict, verdict: str, tie_ratio: float) -> dict:
+    """A diagnosis's causes re-ranked with the replays' verdict: a tie between the first two broken by it.
+
+    ``diagnosis``: the dict of :meth:`Diagnosis.as_dict`. Returns it (changed in place): ``cause`` and
+    ``also`` swapped and ``tie_broken_by`` set to the verdict when the first two causes held within
+    ``tie_ratio`` of each other's strength and the verdict favours the second, not the first.
+    """
+    also = list(diagnosis.get("also") or [])
+    cause = diagnosis.get("cause")
+    ev = diagnosis.get("evidence") or {}
+    favoured = VERDICT_FAVOURS.get(verdict, ())
+    if not also or cause in favoured or also[0] not in favoured:
+        return diagnosis
+    s1, s2 = ev.get(f"strength_{cause}", float("nan")), ev.get(f"strength_{also[0]}", float("nan"))
+    if np.isfinite(s1) and np.isfinite(s2) and s2 > 0 and s1 / s2 <= tie_ratio:
+        diagnosis["cause"], diagnosis["also"] = also[0], [cause, *also[1:]]
+        diagnosis["tie_broken_by"] = verdict
+    return diagnosis
 
 
 def _card(cause, also, lost_at, drift_began, ev, labels, last: FrameEvidence) -> str:
@@ -603,7 +722,7 @@ def _card(cause, also, lost_at, drift_began, ev, labels, last: FrameEvidence) ->
         "faster than the templates follow",
         "impoverishment": f"the weights sat on a handful of particles (ESS/N down to {_fmt(ev['ess_frac_min'], 3)} "
         f"on {int(ev['frames_ess_low'])} frames)",
-        "unknown": "no rule of the vocabulary held; read the views",
+        "unknown": "no rule of the vocabulary held; read the views and the replays' verdict",
     }[cause]
     fails = ", ".join(f"{v} {k}" for k, v in labels.items() if v) or "none labelled"
     s = (
@@ -611,7 +730,13 @@ def _card(cause, also, lost_at, drift_began, ev, labels, last: FrameEvidence) ->
         f"Frames off track: {fails}."
     )
     if also:
-        s += f" Also held: {', '.join(a.replace('_', ' ') for a in also)}."
+        s += " Also held (by strength): " + ", ".join(
+            f"{a.replace('_', ' ')} {ev.get(f'strength_{a}', float('nan')):.2f}x" for a in also) + "."
+        s += f" {cause.replace('_', ' ')} held by {ev.get(f'strength_{cause}', float('nan')):.2f}x."
+    if cause == "unknown" and "nearest_rule" in ev:
+        near = CAUSES[int(ev["nearest_rule"])]
+        s += (f" Nearest: {near.replace('_', ' ')} at {ev['nearest_rule_share']:.0%} of its threshold"
+              + (f" (the box {_fmt(scale_ratio_of(ev))}x the truth's size)" if near == "scale" else "") + ".")
     gaps = {k[4:]: v for k, v in ev.items() if k.startswith("gap_") and np.isfinite(v)}
     if len(gaps) > 1:  # the likelihood has terms: say which preferred the estimate's place
         parts = sorted(gaps.items(), key=lambda kv: -kv[1])
@@ -784,6 +909,11 @@ class Diagnoser(Observer):
             poses = np.stack([truth_pose, box_to_pose(box, probe.base_wh)])
             C, Q = probe.quadrant_descriptors(pg, poses)
             kw["truth_C"], kw["truth_Q"], kw["estimate_C"] = C[0], Q[0], C[1]
+            if number % cfg.scene_every == 0:
+                ring = _surrounding_boxes(gt, frame.image.shape)
+                if len(ring):
+                    around = probe.descriptors(pg, np.stack([box_to_pose(b, probe.base_wh) for b in ring]))
+                    kw["background_look"] = float(distance_riemann(np.broadcast_to(C[0], around.shape), around).min())
             if s.past:
                 boxes = np.stack([b for _, b in s.past])
                 apart = np.flatnonzero(iou(boxes, np.broadcast_to(gt, boxes.shape)) <= cfg.scene_iou)

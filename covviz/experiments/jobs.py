@@ -228,7 +228,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
     wall = time.perf_counter() - t0
     report = diagnoser.report(0)
     if replays is not None and replays.replays:
-        with_replays(report, replays.replays[0])
+        with_replays(report, replays.replays[0], diagnoser.config.tie_ratio)
     extra = {
         "curves": {
             "iou_thresholds": IOU_THRESHOLDS,

@@ -268,7 +268,7 @@ class ResultWriter(ProgressObserver):
             if j < len(self._replays):  # each loss's replays and verdict
                 from covviz.diagnosis.counterfactual import with_replays
 
-                with_replays(report, self._replays[j])
+                with_replays(report, self._replays[j], d.config.tie_ratio)
         return out
 
     def _box_text(self, j: int, boxes: np.ndarray) -> str:
