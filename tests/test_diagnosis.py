@@ -7,6 +7,7 @@ tried); the whole pipeline on the synthetic failure scenarios is tested in test_
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -139,12 +140,50 @@ def test_impoverishment_and_unknown(rng):
     assert d2.cause == "unknown" and "no rule" in d2.text
 
 
-def test_rules_are_tried_in_the_documented_order(rng):
-    # A jump that also shrinks the box: fast motion first, scale listed as also held.
+def test_causes_are_ranked_by_how_far_their_evidence_passed_its_threshold(rng):
+    # A jump of 1.4 sizes (2.8x the threshold) that also shrinks the box 3x (1.9x its threshold).
     ev = frame(21, rng, truth_motion=1.4, nearest=1.1, scale_ratio=3.0, contain=0.9)
     d = diagnose(calm_history(rng) + [ev], 21, 21, CFG)
-    assert (d.cause, d.also[:1]) == ("fast_motion", ("scale",))
-    assert list(CAUSES).index("fast_motion") < list(CAUSES).index("scale")
+    assert d.cause == "fast_motion" and "scale" in d.also
+    s = d.evidence
+    assert s["strength_fast_motion"] == pytest.approx(1.4 / CFG.fast_motion)
+    assert s["strength_scale"] == pytest.approx(3.0 / CFG.scale_ratio)
+    ranked = [d.cause, *d.also]
+    assert [s[f"strength_{c}"] for c in ranked] == sorted((s[f"strength_{c}"] for c in ranked), reverse=True)
+    assert "by strength" in d.text
+    # a smaller jump (1.1x its threshold) ranks below the same size change
+    ev2 = frame(21, rng, truth_motion=0.55, nearest=1.1, scale_ratio=3.0, contain=0.9)
+    d2 = diagnose(calm_history(rng) + [ev2], 21, 21, CFG)
+    assert [d2.cause, *d2.also].index("scale") < [d2.cause, *d2.also].index("fast_motion")
+
+
+def test_the_verdict_breaks_a_tie_and_only_a_tie():
+    from covviz.diagnosis.drift import rerank
+
+    tie = {"cause": "scale", "also": ["occlusion"], "evidence": {"strength_scale": 1.5, "strength_occlusion": 1.4}}
+    out = rerank(dict(tie), "model", 1.2)
+    assert out["cause"] == "occlusion" and out["also"] == ["scale"] and out["tie_broken_by"] == "model"
+    assert rerank(dict(tie), "search", 1.2)["cause"] == "scale"  # a search verdict does not favour occlusion
+    clear = {"cause": "scale", "also": ["occlusion"], "evidence": {"strength_scale": 2.5, "strength_occlusion": 1.4}}
+    assert rerank(dict(clear), "model", 1.2)["cause"] == "scale"  # not a tie
+    assert "tie_broken_by" not in rerank(dict(clear), "model", 1.2)
+
+
+def test_a_street_is_not_a_look_alike(rng):
+    """A distractor needs the followed region to resemble the target clearly more than the scene around it."""
+    # the estimate's region as far from the target's look as the nearest surrounding region: no distractor
+    base = calm_history(rng)
+    ev = frame(21, rng, best_truth=3.0, best_est=1.5)
+    alike = diagnose(base + [ev], 21, 21, CFG)
+    assert alike.cause == "distractor"
+    d_est = alike.evidence["estimate_look_at_loss"]
+    street = diagnose([replace(h, background_look=d_est / CFG.distractor_background * 0.9) for h in base] + [ev],
+                      21, 21, CFG)
+    assert street.cause != "distractor" and "distractor" not in street.also
+    # ... and one that resembles it twice as much as the street does is one
+    near = diagnose([replace(h, background_look=2 * d_est / CFG.distractor_background) for h in base] + [ev],
+                    21, 21, CFG)
+    assert near.cause == "distractor"
 
 
 def test_diagnosis_is_json_ready(rng):

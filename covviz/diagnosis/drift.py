@@ -637,7 +637,9 @@ def _nanmedian(values) -> float:
 
 
 def _strengths(ev: dict, look, cfg: DiagnosisConfig, hold_c: float, jump: float) -> dict[str, float]:
-    """How far each cause's evidence went past its threshold, as a ratio (> 1: the rule's main test passed).
+    """How far each cause's evidence went past its threshold, ``1 + (value - threshold) / threshold`` (> 1: the
+    rule's main test passed; for a distance that had to stay below its threshold, ``1 + (threshold - value) /
+    threshold``).
 
     The ranking of the causes that held, and the nearest miss when none did. One number per rule,
     its main comparison: fast motion the truth's jump over ``fast_motion``; scale the size ratio over
@@ -658,8 +660,14 @@ def _strengths(ev: dict, look, cfg: DiagnosisConfig, hold_c: float, jump: float)
         "fast_motion": ratio(ev.get("truth_motion_max", float("nan")), cfg.fast_motion),
         "scale": ratio(scale, cfg.scale_ratio),
         "illumination": ratio(ev.get("light_log2_max", float("nan")), np.log2(cfg.light_ratio)),
-        "distractor": ratio(look_thr, est) if np.isfinite(est) and est > 0 else float("nan"),
-        "occlusion": ratio(ev.get("quadrant_change_max", float("nan")), jump),
+        # a distance that had to stay below its threshold: 1 + its relative margin, at most 2
+        "distractor": 2.0 - est / look_thr if np.isfinite(est) and look_thr > 0 else float("nan"),
+        # some quadrants changed while another held; or the scene that stood there before shows at the
+        # target's place (a distance that had to stay below hold_c)
+        "occlusion": float(np.nanmax([
+            ratio(ev.get("quadrant_change_max", float("nan")), jump),
+            2.0 - ev["scene_distance"] / hold_c if ("scene_frame" in ev and hold_c > 0) else float("nan"),
+        ])),
         "appearance": ratio(ev.get("target_change_max", float("nan")),
                             max(cfg.appearance_change, cfg.noise_factor * look.noise_c)),
         "impoverishment": ratio(ev.get("frames_ess_low", float("nan")), cfg.impoverished_frames),
