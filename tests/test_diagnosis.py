@@ -14,7 +14,6 @@ import pytest
 
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.diagnosis.drift import (
-    CAUSES,
     LABELS,
     Diagnoser,
     DiagnosisConfig,
