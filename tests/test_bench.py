@@ -14,12 +14,12 @@ import re
 import shutil
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
+from helpers import write_otb
 
 from covviz.cli import main
-from covviz.data.sequences import SyntheticConfig, SyntheticSequence, read_boxes, write_boxes
+from covviz.data.sequences import read_boxes
 from covviz.experiments import jobs as jobs_mod
 from covviz.experiments.bench import BenchError, Job, bench, find_sequences, plan_jobs
 from covviz.experiments.report import Stat, write_report
@@ -30,18 +30,6 @@ SEEDS = 2
 PARTICLES = 20
 FRAMES = {"alpha": 15, "beta": 12}
 N_JOBS = len(FRAMES) * (2 + SEEDS)  # identity and csrt once, manifold per seed
-
-
-def write_otb(folder: Path, n_frames: int, seed: int) -> None:
-    seq = SyntheticSequence(
-        SyntheticConfig(n_frames=n_frames, width=160, height=120, target_w=24, target_h=30, seed=seed)
-    )
-    (folder / "img").mkdir(parents=True)
-    for i in range(n_frames):
-        cv2.imwrite(
-            str(folder / "img" / f"{i + 1:04d}.png"), cv2.cvtColor(seq.frame(i).image, cv2.COLOR_RGB2BGR)
-        )
-    write_boxes(folder / "groundtruth_rect.txt", seq.groundtruth)
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
-from test_bench import write_otb
+from helpers import descendants, write_otb
 
 import covviz
 from covviz.cli import main
@@ -55,34 +55,6 @@ def reference(root, tmp_path_factory) -> Path:
 # --------------------------------------------------------------------------- #
 # processes, from /proc
 # --------------------------------------------------------------------------- #
-def _proc_table() -> dict[int, tuple[int, str]]:
-    """pid -> (parent pid, command line) of every process."""
-    out = {}
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            stat = (d / "stat").read_text()
-            ppid = int(stat.rsplit(")", 1)[1].split()[1])
-            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-        except (OSError, IndexError, ValueError):
-            continue
-        out[int(d.name)] = (ppid, cmd)
-    return out
-
-
-def descendants(pid: int) -> dict[int, str]:
-    table = _proc_table()
-    found, frontier = {}, [pid]
-    while frontier:
-        p = frontier.pop()
-        for c, (pp, cmd) in table.items():
-            if pp == p and c not in found:
-                found[c] = cmd
-                frontier.append(c)
-    return found
-
-
 def alive(pid: int) -> bool:
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()

@@ -28,8 +28,7 @@ import pytest
 
 pytest.importorskip("distributed")
 
-from test_bench import write_otb
-from test_bench_faults import descendants
+from helpers import descendants, write_otb
 
 import covviz
 from covviz.cli import main

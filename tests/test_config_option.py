@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from test_bench import write_otb
+from helpers import write_otb
 
 from covviz.cli import main
 from covviz.experiments.bench import bench

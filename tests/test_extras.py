@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 
 import pytest
-from test_bench import write_otb
+from helpers import write_otb
 
 from covviz.cli import main
 

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import real_sequence
 
 from covviz.data.sequences import open_sequence
 from covviz.model import kernels, spd
@@ -38,7 +39,6 @@ from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 
 pytestmark = pytest.mark.skipif(kernels.numba is None, reason="numba is not installed")
 
-SHARED_SEQUENCES = Path(__file__).resolve().parents[2] / "shared" / "sequences"
 EPS = 1e-3
 # Tolerances of the fast path against the float64 numpy path (see the module docstring).
 DESC_RTOL = 1e-5  # per matrix, ||ΔC||_F / ||C||_F
@@ -100,13 +100,6 @@ def walk(L: np.ndarray, n: int, sigma: float, rng) -> np.ndarray:
     """``n`` symmetric log-space templates scattered around ``L``."""
     W = rng.normal(0.0, sigma, (n, *L.shape))
     return L + 0.5 * (W + np.swapaxes(W, 1, 2))
-
-
-def real_sequence(name: str) -> Path:
-    folder = SHARED_SEQUENCES / name
-    if not folder.is_dir():
-        pytest.skip(f"real sequence {name} not available at {folder}")
-    return folder
 
 
 def real_poses(name: str, frame: int, n: int, rng):

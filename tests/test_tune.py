@@ -18,7 +18,7 @@ import pytest
 
 optuna = pytest.importorskip("optuna")
 
-from test_bench import write_otb
+from helpers import write_otb
 
 import covviz
 from covviz.cli import main
