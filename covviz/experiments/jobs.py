@@ -188,6 +188,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
 
     from covviz import __version__
     from covviz.data.sequences import open_sequence
+    from covviz.diagnosis.detector import drift_watch
     from covviz.diagnosis.drift import Diagnoser
     from covviz.metrics import (
         IOU_THRESHOLDS,
@@ -204,10 +205,12 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
     tracker = job.make_tracker()
     failures = _FailureCounter()
     diagnoser = Diagnoser()
+    watch = drift_watch(getattr(job, "detector", None))  # issue 21: label-free signals + drift probability
     t0 = time.perf_counter()
     with limit_threads(threads), contextlib.closing(tracker) if hasattr(tracker, "close") else contextlib.nullcontext():
         # The drift diagnosis on its own thread, overlapping the tracker (it never changes a box).
-        res = run(tracker, seq, [failures, BackgroundObserver(diagnoser)], max_frames=job.max_frames, seed=job.seed)
+        res = run(tracker, seq, [failures, BackgroundObserver(diagnoser), BackgroundObserver(watch)],
+                  max_frames=job.max_frames, seed=job.seed)
     wall = time.perf_counter() - t0
     extra = {
         "curves": {
@@ -218,8 +221,8 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
         },
         "thresholds": {"precision_at": PRECISION_AT, "on_track_gamma": ON_TRACK_GAMMA},
         "failed_frames": failures.failed,
-        "diagnosis": diagnoser.report(0),
-        "diagnosis_config": diagnoser.config.as_dict(),
+        "diagnosis": {**diagnoser.report(0), **watch.report(0, res)},
+        "diagnosis_config": {**diagnoser.config.as_dict(), **watch.config_dict()},
         "bench": {
             "jobs": slots,
             "threads": threads,
