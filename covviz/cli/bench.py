@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from covviz.cli.calibrate import add_detector_arg, detector_text
 from covviz.cli.common import add_config_arg, nonneg_int, positive_int, read_config
 
 BENCH_EPILOG = """\
@@ -69,6 +70,7 @@ def add_bench_parser(sub) -> argparse.ArgumentParser:
         "--particles", type=positive_int, help="particles of the stochastic trackers (default: their own)"
     )
     add_config_arg(p)
+    add_detector_arg(p)
     p.add_argument(
         "--force", action="store_true", help="re-run every job, even into a folder from another run"
     )
@@ -112,6 +114,7 @@ def cmd_bench(args) -> int:
         config=None if config is None else config.as_dict(),
         cluster=args.cluster,
         retries=args.retries,
+        detector=detector_text(args.detector),
     )
     n_failed = len(summary["failed"])
     for event in summary.get("events", []):

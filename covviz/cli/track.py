@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+from covviz.cli.calibrate import add_detector_arg
 from covviz.cli.common import (
     UsageError,
     _check_out_dir,
@@ -75,6 +76,7 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
     )
     p.add_argument("--particles", type=positive_int, help="number of particles (default: the tracker's own)")
     add_config_arg(p)
+    add_detector_arg(p)
     p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0): same seed, same boxes")
     p.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
     p.add_argument("--out", type=Path, default=Path("runs"), help="results folder (default: runs/)")
@@ -97,6 +99,20 @@ def _print_diagnosis(found: dict | None) -> None:
     off = {k: v for k, v in labels.items() if k != "ok" and v}
     if off:
         print("  frames off track: " + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items()))
+
+def _print_alarms(found: dict | None, every: bool) -> None:
+    """Issue 21: the label-free drift alarms, one line each without ground truth (else their count)."""
+    from covviz.diagnosis.detector import describe_alarm
+
+    alarms = (found or {}).get("alarms", [])
+    if every:
+        for a in alarms[:20]:
+            print(f"  {describe_alarm(a)}")
+        if len(alarms) > 20:
+            print(f"  ... {len(alarms) - 20} more drift alarm(s) in the results JSON (diagnosis.alarms)")
+    elif alarms:
+        print(f"  {len(alarms)} label-free drift alarm(s) (first at frame {alarms[0]['frame']}); "
+              "diagnosis.alarms in the results JSON")
 
 def _recording_observers(
     args, seq, n_frames: int, diagnoser, created: list[Path] | None = None
@@ -199,6 +215,7 @@ def _recording_complete(path: Path) -> bool:
     return bool(recording_complete(path))
 
 def _track(args) -> int:
+    from covviz.diagnosis.detector import drift_watch
     from covviz.diagnosis.drift import Diagnoser
     from covviz.model.image import check_init_box
 
@@ -215,6 +232,7 @@ def _track(args) -> int:
         _check_out_dir(args.out, created)
         trackers = _make_trackers(args.trackers, args.seed, args.particles, getattr(args, "config", None))
         diagnoser = Diagnoser()
+        watch = drift_watch(args.detector)  # issue 21: label-free drift probability and alarms
         # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
         recorders, rrd = _recording_observers(args, seq, n_frames, diagnoser, created)
     except BaseException:
@@ -225,19 +243,22 @@ def _track(args) -> int:
         for tr in trackers:
             if hasattr(tr, "close"):
                 stack.callback(tr.close)
-        return _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created)
+        return _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created, watch)
 
-def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> int:
+def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created, watch=None) -> int:
     from covviz.experiments.results import ResultWriter
     from covviz.metrics import nothing_to_score
-    from covviz.runner import FreeSpaceGuard, ResultCollector, run_many
+    from covviz.runner import BackgroundObserver, FreeSpaceGuard, ResultCollector, run_many
     from covviz.signals import exit_code
 
     def extra(j: int) -> dict:
         """What the drift diagnosis found for tracker ``j`` so far, for its results JSON."""
         if j >= len(diagnoser.states):
             return {}
-        return {"diagnosis": diagnoser.report(j), "diagnosis_config": diagnoser.config.as_dict()}
+        if watch is None or j >= len(watch.watches):
+            return {"diagnosis": diagnoser.report(j), "diagnosis_config": diagnoser.config.as_dict()}
+        return {"diagnosis": {**diagnoser.report(j), **watch.report(j)},
+                "diagnosis_config": {**diagnoser.config.as_dict(), **watch.config_dict()}}
 
     # The results are on disk while the run goes (every second, and at the end): what a kill, a
     # signal or a full disk leaves is the frames done. The writer ends after the recorder (whose
@@ -245,7 +266,8 @@ def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> in
     writer = ResultWriter(args.out, extra=extra)
     guard = FreeSpaceGuard([args.out, *([rrd] if rrd is not None else [])])
     collector = ResultCollector()
-    observers = [*getattr(args, "observers", []), guard, *recorders, writer, collector]
+    drift = [] if watch is None else [BackgroundObserver(watch)]  # the label-free detector, on its own thread
+    observers = [*getattr(args, "observers", []), guard, *recorders, *drift, writer, collector]
     where = args.out / seq.name
     t0 = time.perf_counter()
     code = 0
@@ -293,6 +315,7 @@ def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> in
         head = f"{res.sequence} · {res.tracker} (seed {res.seed}): {len(res.boxes)} frames, {res.fps:.1f} fps"
         if nothing_to_score(res.groundtruth):
             print(f"{head}\n  nothing to score: no ground truth after the first frame, whose box is the one given")
+            _print_alarms(doc.get("diagnosis"), every=True)
             continue
         print(
             f"{head}\n"
@@ -301,6 +324,7 @@ def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> in
             f"mean IoU {m['mean_iou']:.3f}   ({m['n_skipped']} frames without ground truth skipped)"
         )
         _print_diagnosis(doc.get("diagnosis"))
+        _print_alarms(doc.get("diagnosis"), every=False)
     print(f"results in {where}/  ({wall:.1f} s wall)")
     if rrd is not None and not code:
         print(f"recording in {rrd}   open it with: rerun {_q(rrd)}")

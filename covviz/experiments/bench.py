@@ -58,6 +58,7 @@ import sys
 from collections import deque
 from collections.abc import Iterator
 from collections.abc import Sequence as Seq
+from dataclasses import replace
 from pathlib import Path
 
 from covviz import __version__
@@ -449,6 +450,7 @@ def bench(
     cluster: str | None = None,
     retries: int = 1,
     executor=None,
+    detector: str | None = None,
 ) -> dict:
     """Run ``trackers`` on every sequence under ``root``; write results and a report to ``out``.
 
@@ -486,6 +488,8 @@ def bench(
     executor : Executor, optional
         Run the jobs with this one (:class:`LocalExecutor`, a Dask one) instead of
         making one from ``jobs``/``cluster``; it is not closed.
+    detector : str, optional
+        A drift model's JSON text (``covviz calibrate``) for every job; None: the shipped models.
 
     Returns
     -------
@@ -526,13 +530,13 @@ def bench(
     with lock_results_folder(out):
         return _bench_locked(
             root, out, sequences, trackers, configs, seeds, jobs, max_frames, particles, force, progress,
-            report, config, cluster, retries, executor,
+            report, config, cluster, retries, executor, detector,
         )
 
 
 def _bench_locked(
     root, out, sequences, trackers, configs, seeds, jobs, max_frames, particles, force, progress, report,
-    config, cluster, retries, executor,
+    config, cluster, retries, executor, detector=None,
 ) -> dict:
     from covviz.trackers import STOCHASTIC
 
@@ -556,6 +560,8 @@ def _bench_locked(
     manifest["configs"] = {**((old or {}).get("configs") or {}), **configs}
 
     all_jobs = plan_jobs(sequences, trackers, seeds, particles, max_frames, config)
+    if detector is not None:  # issue 21: every job's drift model (a covviz calibrate file's text)
+        all_jobs = [replace(j, detector=detector) for j in all_jobs]
     todo = all_jobs if force else [j for j in all_jobs if not _is_done(j, out, configs[j.tracker])]
     skipped = len(all_jobs) - len(todo)
     write_manifest(out, manifest)

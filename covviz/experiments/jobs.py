@@ -73,6 +73,7 @@ class Job:
     particles: int | None
     max_frames: int | None
     config: str | None = None
+    detector: str | None = None  # issue 21: a drift model's JSON text (covviz bench --detector), None: shipped
 
     @property
     def label(self) -> str:
@@ -188,7 +189,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
 
     from covviz import __version__
     from covviz.data.sequences import open_sequence
-    from covviz.diagnosis.detector import drift_watch
+    from covviz.diagnosis.detector import DriftModel, drift_watch
     from covviz.diagnosis.drift import Diagnoser
     from covviz.metrics import (
         IOU_THRESHOLDS,
@@ -205,7 +206,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
     tracker = job.make_tracker()
     failures = _FailureCounter()
     diagnoser = Diagnoser()
-    watch = drift_watch(getattr(job, "detector", None))  # issue 21: label-free signals + drift probability
+    watch = drift_watch(None if job.detector is None else DriftModel.from_dict(json.loads(job.detector)))  # issue 21
     t0 = time.perf_counter()
     with limit_threads(threads), contextlib.closing(tracker) if hasattr(tracker, "close") else contextlib.nullcontext():
         # The drift diagnosis on its own thread, overlapping the tracker (it never changes a box).
