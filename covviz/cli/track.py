@@ -114,6 +114,15 @@ def _print_alarms(found: dict | None, every: bool) -> None:
         print(f"  {len(alarms)} label-free drift alarm(s) (first at frame {alarms[0]['frame']}); "
               "diagnosis.alarms in the results JSON")
 
+def _drift_observer(watch, recorders):
+    """Issue 21: the detector, logging its probability and alarms into the recording when there is one."""
+    stream = getattr(getattr(recorders[0], "observer", None), "stream", None) if recorders else None
+    if stream is None:
+        return watch
+    from covviz.viz.drift import DriftRecorder
+
+    return DriftRecorder(stream, watch)
+
 def _recording_observers(
     args, seq, n_frames: int, diagnoser, created: list[Path] | None = None
 ) -> tuple[list, Path | None]:
@@ -266,7 +275,7 @@ def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created, watch
     writer = ResultWriter(args.out, extra=extra)
     guard = FreeSpaceGuard([args.out, *([rrd] if rrd is not None else [])])
     collector = ResultCollector()
-    drift = [] if watch is None else [BackgroundObserver(watch)]  # the label-free detector, on its own thread
+    drift = [] if watch is None else [BackgroundObserver(_drift_observer(watch, recorders))]  # issue 21
     observers = [*getattr(args, "observers", []), guard, *recorders, *drift, writer, collector]
     where = args.out / seq.name
     t0 = time.perf_counter()

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from collections import deque
 from dataclasses import dataclass, field
 from importlib import resources
@@ -298,6 +299,7 @@ class _Watch:
         self.alarm = _AlarmState()
         self.p: list[float] = []
         self.alarms: list[dict] = []
+        self.cpu = 0.0  # seconds of CPU in the model and the alarm rule
 
 
 class DriftWatch:
@@ -338,6 +340,7 @@ class DriftWatch:
             self.new[j] = []
             if w.model is None:
                 continue
+            t0 = time.thread_time()
             row = self.signals.states[j].rows[-1]
             feats = w.history.push(row[w.model.columns])
             p = float(w.model.probability(feats[None])[0])
@@ -359,6 +362,7 @@ class DriftWatch:
                 }
                 w.alarms.append(a)
                 self.new[j].append(a)
+            w.cpu += time.thread_time() - t0
 
     def on_end(self, results) -> None:
         pass
@@ -377,6 +381,7 @@ class DriftWatch:
         w = self.watches[index] if index < len(self.watches) else _Watch(None)
         out["drift_probability"] = [round(p, 4) for p in w.p] if w.model else []
         out["alarms"] = list(w.alarms)
+        out["model_cpu_ms"] = round(1e3 * w.cpu / max(len(w.p), 1), 4)
         out["detector"] = ({"family": w.model.family, "fit": w.model.fit.get("id", "")} if w.model else None)
         if result is not None and len(result.boxes):
             from covviz.metrics import iou
