@@ -177,14 +177,16 @@ def test_bad_detector_files_are_one_line_input_errors(tmp_path):
         DriftModel.load(tmp_path / "x.json")
 
 
-def test_history_features_now_mean_max():
-    rows = np.array([[0.0], [1.0], [np.nan], [3.0]])
-    f = history_features(rows)
-    a = np.arcsinh(rows[:, 0])
-    assert f.shape == (4, 3)
-    assert f[3, 0] == pytest.approx(a[3])
-    assert f[3, 1] == pytest.approx(np.nanmean(a))
-    assert f[3, 2] == pytest.approx(np.nanmax(a))
+def test_history_features_now_mean_max_relative():
+    rows = np.array([[0.0, 5.0], [1.0, 2.0], [np.nan, np.nan], [3.0, 4.0]])
+    f = history_features(rows, ("motion", "fb_error"))  # fb_error also relative to its early median
+    a = np.arcsinh(rows)
+    assert f.shape == (4, 7)
+    np.testing.assert_allclose(f[3, :2], a[3])
+    np.testing.assert_allclose(f[3, 2:4], np.nanmean(a, axis=0))
+    np.testing.assert_allclose(f[3, 4:6], np.nanmax(a, axis=0))
+    assert f[3, 6] == pytest.approx(np.arcsinh(4.0 / np.median([5.0, 2.0, 4.0])))
+    assert np.isnan(f[2, 6])
 
 
 def test_families_and_shipped_models():
@@ -220,7 +222,9 @@ class _NoTruth(Sequence):
 
 
 def _model_for(signals, rng) -> DriftModel:
-    k = 3 * len(signals)
+    from covviz.diagnosis.detector import feature_names
+
+    k = len(feature_names(signals))
     return DriftModel("generic", tuple(signals), np.zeros(k), np.ones(k), rng.normal(0, 0.5, k), -1.0,
                       Hysteresis(0.6, 0.4, 3))
 

@@ -254,7 +254,7 @@ def signals_for(trackers) -> tuple:
 
 def _design(runs: list[Run], signals) -> list[np.ndarray]:
     cols = np.array([SIGNALS.index(s) for s in signals])
-    return [history_features(r.rows[:, cols]) for r in runs]
+    return [history_features(r.rows[:, cols], signals) for r in runs]
 
 
 def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray] | None = None,

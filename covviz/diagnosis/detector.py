@@ -63,6 +63,9 @@ FAMILIES = {
 #: History features: the mean of the last HISTORY_MEAN frames and the max of the last HISTORY_MAX.
 HISTORY_MEAN = 5
 HISTORY_MAX = 10
+#: Signals also given relative to their own median over the run's first BASELINE_FRAMES frames.
+RELATIVE = ("fb_error", "flow_gap", "d_first", "d_recent", "cloud_gap", "psr")
+BASELINE_FRAMES = 20
 #: Frames the probability must stay below the release level before an episode ends.
 COOLDOWN = 5
 #: Signal names as a person reads them in a summary line, with their unit.
@@ -88,37 +91,54 @@ def _squash(x: np.ndarray) -> np.ndarray:
 
 
 class _History:
-    """The last HISTORY_MAX squashed rows of one tracker, and the features of the newest."""
+    """The last HISTORY_MAX squashed rows of one tracker's signals, and the features of the newest.
 
-    def __init__(self, k: int):
+    Per signal: its value now, the mean of the last HISTORY_MEAN frames and the max of the last
+    HISTORY_MAX (``asinh``-squashed); and, for the signals of :data:`RELATIVE`, ``asinh`` of its value
+    over its own median on the run's first BASELINE_FRAMES frames where it is defined (the run's own
+    scale, label-free: a target's texture sets how large its distances are).
+    """
+
+    def __init__(self, signals):
         self.rows: deque = deque(maxlen=HISTORY_MAX)
-        self.k = k
+        self.rel = [i for i, s in enumerate(signals) if s in RELATIVE]
+        self.first: list[list[float]] = [[] for _ in self.rel]
 
     def push(self, row: np.ndarray) -> np.ndarray:
+        import warnings
+
+        row = np.asarray(row, dtype=np.float64)
         self.rows.append(_squash(row))
         a = np.stack(self.rows)
-        with np.errstate(all="ignore"):
-            import warnings
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean = np.nanmean(a[-HISTORY_MEAN:], axis=0)
+            mx = np.nanmax(a, axis=0)
+        rel = np.full(len(self.rel), np.nan)
+        for j, i in enumerate(self.rel):
+            v, first = row[i], self.first[j]
+            if np.isfinite(v) and len(first) < BASELINE_FRAMES:
+                first.append(float(v))
+            base = float(np.median(first)) if first else float("nan")
+            if np.isfinite(v) and base > 0:
+                rel[j] = math.asinh(v / base)
+        return np.concatenate([a[-1], mean, mx, rel])
 
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                mean = np.nanmean(a[-HISTORY_MEAN:], axis=0)
-                mx = np.nanmax(a, axis=0)
-        return np.concatenate([a[-1], mean, mx])
 
-
-def history_features(rows: np.ndarray) -> np.ndarray:
-    """Features of every frame of a run, ``(n, 3 k)`` from signal rows ``(n, k)``: now, recent mean, recent max.
+def history_features(rows: np.ndarray, signals) -> np.ndarray:
+    """Features of every frame of a run from its signal rows ``(n, k)`` (columns: ``signals``).
 
     Exactly what :class:`DriftWatch` computes online, frame by frame (it is the same code).
     """
     rows = np.asarray(rows, dtype=np.float64)
-    h = _History(rows.shape[1])
-    return np.stack([h.push(r) for r in rows]) if len(rows) else np.zeros((0, 3 * rows.shape[1]))
+    h = _History(signals)
+    n_feat = 3 * len(signals) + len(h.rel)
+    return np.stack([h.push(r) for r in rows]) if len(rows) else np.zeros((0, n_feat))
 
 
 def feature_names(signals) -> list[str]:
-    return [f"{s}{suf}" for suf in ("", f"_mean{HISTORY_MEAN}", f"_max{HISTORY_MAX}") for s in signals]
+    return ([f"{s}{suf}" for suf in ("", f"_mean{HISTORY_MEAN}", f"_max{HISTORY_MAX}") for s in signals]
+            + [f"{s}_rel" for s in signals if s in RELATIVE])
 
 
 @dataclass(frozen=True)
@@ -192,10 +212,10 @@ class DriftModel:
     fit: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        n = 3 * len(self.signals)
+        n = len(feature_names(self.signals))
         for name in ("center", "scale", "coef"):
             if np.shape(getattr(self, name)) != (n,):
-                raise ValueError(f"{name} must have {n} values (3 per signal), got {np.shape(getattr(self, name))}")
+                raise ValueError(f"{name} must have {n} values (one per feature), got {np.shape(getattr(self, name))}")
         unknown = [s for s in self.signals if s not in SIGNALS]
         if unknown:
             raise ValueError(f"unknown signal(s) {', '.join(unknown)}; known: {', '.join(SIGNALS)}")
@@ -214,12 +234,14 @@ class DriftModel:
         """Each signal's share of the logit on one frame (its three features summed), by name."""
         z = (np.asarray(feats, dtype=np.float64) - self.center) / self.scale
         c = np.where(np.isfinite(z), z, 0.0) * self.coef
-        k = len(self.signals)
-        return {s: float(c[i] + c[k + i] + c[2 * k + i]) for i, s in enumerate(self.signals)}
+        out: dict[str, float] = dict.fromkeys(self.signals, 0.0)
+        for name, v in zip(feature_names(self.signals), c):
+            out[next(s for s in self.signals if name == s or name.startswith(s + "_"))] += float(v)
+        return out
 
     def predict_run(self, rows: np.ndarray) -> np.ndarray:
         """Probabilities of every frame of a run from its :data:`SIGNALS` rows ``(n, len(SIGNALS))``."""
-        return self.probability(history_features(np.asarray(rows)[:, self.columns]))
+        return self.probability(history_features(np.asarray(rows)[:, self.columns], self.signals))
 
     # ------------------------------------------------------------------ #
     def as_dict(self) -> dict:
@@ -228,7 +250,8 @@ class DriftModel:
             "version": VERSION,
             "family": self.family,
             "model": "logistic regression on standardised asinh(signal) features: now, "
-            f"mean of the last {HISTORY_MEAN} frames, max of the last {HISTORY_MAX}",
+            f"mean of the last {HISTORY_MEAN} frames, max of the last {HISTORY_MAX}; and some signals over their "
+            f"median on the run's first {BASELINE_FRAMES} frames",
             "signals": list(self.signals),
             "features": feature_names(self.signals),
             "center": [float(f"{v:.6g}") for v in self.center],
@@ -295,7 +318,7 @@ def shipped_model(tracker: str) -> DriftModel | None:
 class _Watch:
     def __init__(self, model: DriftModel | None):
         self.model = model
-        self.history = _History(len(model.signals)) if model else None
+        self.history = _History(model.signals) if model else None
         self.alarm = _AlarmState()
         self.p: list[float] = []
         self.alarms: list[dict] = []
