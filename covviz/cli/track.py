@@ -86,15 +86,12 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
     return p
 
 def _print_diagnosis(found: dict | None) -> None:
-    """The terminal summary of the drift diagnosis: every loss with its cause, the suspects' count."""
+    """The terminal summary of the drift diagnosis: every loss with its cause (the label-free alarms, which
+    replace the suspects here, are :func:`_print_alarms`')."""
     if not found:
         return
     for d in found.get("diagnoses", []):
         print(f"  {d['text']}")
-    sus = found.get("suspects", [])
-    if sus:
-        kinds = sorted({sp["kind"] for sp in sus})
-        print(f"  {len(sus)} suspect frame(s) without ground truth ({', '.join(kinds)}); 'covviz events' lists them")
     labels = found.get("labels", {})
     off = {k: v for k, v in labels.items() if k != "ok" and v}
     if off:
