@@ -42,7 +42,6 @@ field), so a change of :class:`~covviz.records.FrameRecord` is a change here.
 from __future__ import annotations
 
 import math
-import time
 from collections import deque
 from dataclasses import asdict, dataclass
 
@@ -249,8 +248,6 @@ class _State:
         self.boxes: deque = deque(maxlen=cfg.scale_lag + 1)
         self.d_run: deque = deque(maxlen=cfg.z_window)
         self.base_size = float("nan")
-        self.cpu = 0.0
-        self.frames = 0
 
 
 class SignalObserver:
@@ -274,15 +271,10 @@ class SignalObserver:
         self._prev_gray = None
 
     def on_frame(self, frame, records) -> None:
-        t0 = time.thread_time()
         gray = _gray8(frame.image)
-        c0 = time.thread_time() - t0  # the grey frame is shared by the trackers
         for j, (s, rec) in enumerate(zip(self.states, records)):
-            t1 = time.thread_time()
             row = self._row(s, frame, rec, gray, int(frame.index))
             s.rows.append(row)
-            s.cpu += time.thread_time() - t1 + c0 / len(records)
-            s.frames += 1
             self.latest[j] = dict(zip(SIGNALS, row.tolist()))
         self._prev_gray = gray
 
@@ -395,9 +387,7 @@ class SignalObserver:
 
     def report(self, index: int = 0) -> dict:
         """Tracker ``index``'s signals as plain data for the results JSON (``diagnosis.signals``)."""
-        s = self.states[index]
         cols = self.columns(index)
         return {
             "signals": {k: [None if not np.isfinite(v) else float(f"{v:.5g}") for v in col] for k, col in cols.items()},
-            "signals_cpu_ms": round(1e3 * s.cpu / max(s.frames, 1), 4),
         }
