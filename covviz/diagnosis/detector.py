@@ -395,6 +395,14 @@ class DriftWatch:
     def on_end(self, results) -> None:
         pass
 
+    def cpu_ms(self) -> dict[str, float]:
+        """Thread CPU per tracker and frame so far, ms: the signals, and the model with the alarm rule.
+
+        Not in the results (they stay the same from run to run); ``benchmarks/drift_cost.py`` prints it.
+        """
+        k = max(len(self.watches), 1) * max(self.frames, 1)
+        return {"signals": 1e3 * self.signals_cpu / k, "model": 1e3 * self.model_cpu / k}
+
     def config_dict(self) -> dict:
         return {"signals": self.signals.config.as_dict()}
 
@@ -409,8 +417,6 @@ class DriftWatch:
         w = self.watches[index] if index < len(self.watches) else _Watch(None)
         out["drift_probability"] = [round(p, 4) for p in w.p] if w.model else []
         out["alarms"] = list(w.alarms)
-        k = max(len(self.watches), 1) * max(self.frames, 1)  # CPU per tracker and frame
-        out["cpu_ms"] = {"signals": round(1e3 * self.signals_cpu / k, 4), "model": round(1e3 * self.model_cpu / k, 4)}
         out["detector"] = ({"family": w.model.family, "fit": w.model.fit.get("id", "")} if w.model else None)
         if result is not None and len(result.boxes):
             from covviz.metrics import iou
