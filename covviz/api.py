@@ -131,6 +131,7 @@ def track(
     progress: bool = False,
     mds_every: int = 10,
     counterfactual: bool = True,
+    detector=None,
 ) -> list[TrackResult]:
     """Run trackers on a sequence, as ``covviz track`` does; one :class:`TrackResult` per tracker.
 
@@ -159,6 +160,8 @@ def track(
         A progress bar on stderr.
     mds_every : int
         Template-cloud pictures every k frames in the recording.
+    detector : str, Path or DriftModel, optional
+        The label-free drift model (``covviz calibrate``); None: the shipped one of each tracker's family.
     counterfactual : bool
         Replay every loss with the search, the model or the estimate fixed (needs ground truth;
         each diagnosis then carries ``counterfactual`` and ``verdict``). Trackers of your own
@@ -192,9 +195,12 @@ def track(
         replays = Counterfactuals(built, [(lambda t=t: _trackers([t], seed, particles, config)[0])
                                           if isinstance(t, str) else None for t in _items(trackers)])
         stages.append(replays)
+    from covviz.diagnosis.detector import drift_watch
+
+    watch = drift_watch(detector)  # the label-free drift probability and alarms, on a thread of its own
     save = None if save is None else Path(save)
     if save is None:
-        observers = [BackgroundObserver(Pipeline(stages))]
+        observers = [BackgroundObserver(watch), BackgroundObserver(Pipeline(stages))]
     else:
         if save.suffix != ".rrd":
             raise ValueError(f"save={str(save)!r}: a recording file ends in .rrd")
@@ -208,7 +214,10 @@ def track(
         info = {"name": f"{seq.name} · {'+'.join(names)} · seed {seed}", "command": "covviz.track(...)",
                 "seed": seed, "trackers": names, "max_frames": max_frames, "particles": particles}
         cfg = LoggerConfig(mds_every=mds_every, seed=seed, diagnosis=diagnoser.config)
-        observers = [BackgroundObserver(Pipeline([*stages, RerunLogger(stream, cfg, run_info=info)]))]
+        from covviz.viz.drift import DriftRecorder
+
+        observers = [BackgroundObserver(Pipeline([watch, DriftRecorder(stream)])),
+                     BackgroundObserver(Pipeline([*stages, RerunLogger(stream, cfg, run_info=info)]))]
     results = run_trackers(built, seq, seed, observers, max_frames=max_frames, progress=progress,
                            checkpoints=None if replays is None else replays.config.checkpoints)
     out = []
@@ -218,7 +227,7 @@ def track(
             sequence=r.sequence, tracker=r.tracker, seed=r.seed, boxes=r.boxes, times=r.times,
             groundtruth=r.groundtruth, config=r.config, interrupted=r.interrupted,
             metrics=evaluate(r.boxes, r.groundtruth).as_dict() if scored else {},
-            diagnosis=_diagnosis(diagnoser, replays, j), recording=save,
+            diagnosis={**_diagnosis(diagnoser, replays, j), **watch.report(j)}, recording=save,
         ))
     return out
 

@@ -139,11 +139,17 @@ class Findings:
     counterfactual : tuple, optional
         Per tracker, ``{lost_at: Replay}``: the replays of its losses
         (:class:`covviz.diagnosis.counterfactual.Counterfactuals`, ``on_end`` only).
+    drift : DriftView, optional
+        The label-free drift detector so far (:class:`covviz.diagnosis.detector.DriftView`).
+    drift_news : tuple, optional
+        Per tracker, this frame's ``(drift probability or None, new alarms)``.
     """
 
     diagnosis: Any = None
     news: tuple = ()
     counterfactual: tuple = ()
+    drift: Any = None
+    drift_news: tuple = ()
 
 
 NOTHING = Findings()

@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 
 from covviz.cli.bench import add_bench_parser
+from covviz.cli.calibrate import add_calibrate_parser
 from covviz.cli.common import EXIT_BAD_INPUT, _q
 from covviz.cli.events import add_events_parser
 from covviz.cli.habits import CovvizParser, check_ignored, given_options, glue_negative_values, unrecognized
@@ -63,6 +64,7 @@ Run 'covviz COMMAND --help' for the options and examples of each command.""",
     add_mds_parser(sub)
     add_snapshot_parser(sub)
     add_events_parser(sub)
+    add_calibrate_parser(sub)
     return parser
 
 def _glue_negative_values(argv: list[str]) -> list[str]:

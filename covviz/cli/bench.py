@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from covviz.cli.calibrate import add_detector_arg, detector_text
 from covviz.cli.common import add_config_arg, nonneg_int, positive_int, read_config
 
 BENCH_EPILOG = """\
@@ -71,6 +72,7 @@ def add_bench_parser(sub) -> argparse.ArgumentParser:
         "--particles", type=positive_int, help="particles of the stochastic trackers (default: their own)"
     )
     add_config_arg(p)
+    add_detector_arg(p)
     p.add_argument(
         "--force", action="store_true", help="re-run every job, even into a folder from another run"
     )
@@ -121,6 +123,7 @@ def cmd_bench(args) -> int:
         cluster=args.cluster,
         retries=args.retries,
         counterfactual=args.counterfactual,
+        detector=detector_text(args.detector),
     )
     n_failed = len(summary["failed"])
     for event in summary.get("events", []):

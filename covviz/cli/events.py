@@ -18,7 +18,7 @@ Frames are 1-based, as on the recording's timeline.
 """
 
 #: The kinds of event a recording holds (the epilog says what each is).
-EVENT_KINDS = ("drift", "lost", "recovered", "storm", "storm_end", "diagnosis", "suspect")
+EVENT_KINDS = ("drift", "lost", "recovered", "storm", "storm_end", "diagnosis", "verdict", "alarm", "suspect")
 
 
 def add_events_parser(sub) -> argparse.ArgumentParser:

@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from covviz.cli.calibrate import add_detector_arg
 from covviz.cli.common import (
     UsageError,
     _check_out_dir,
@@ -76,6 +77,7 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
     )
     p.add_argument("--particles", type=positive_int, help="number of particles (default: the tracker's own)")
     add_config_arg(p)
+    add_detector_arg(p)
     p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0): same seed, same boxes")
     p.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
     p.add_argument("--out", type=Path, default=Path("runs"), help="results folder (default: runs/)")
@@ -103,7 +105,8 @@ def replay_line(d: dict) -> str:
 
 
 def _print_diagnosis(found: dict | None) -> None:
-    """The terminal summary of the drift diagnosis: every loss with its cause, the suspects' count."""
+    """The terminal summary of the drift diagnosis: every loss with its cause (the label-free alarms, which
+    replace the suspects here, are :func:`_print_alarms`')."""
     if not found:
         return
     for d in found.get("diagnoses", []):
@@ -112,14 +115,45 @@ def _print_diagnosis(found: dict | None) -> None:
             print(f"    {replay_line(d)}")
             if d.get("verdict_note"):
                 print(f"    note: {d['verdict_note']}")
-    sus = found.get("suspects", [])
-    if sus:
-        kinds = sorted({sp["kind"] for sp in sus})
-        print(f"  {len(sus)} suspect frame(s) without ground truth ({', '.join(kinds)}); 'covviz events' lists them")
     labels = found.get("labels", {})
     off = {k: v for k, v in labels.items() if k != "ok" and v}
     if off:
         print("  frames off track: " + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items()))
+
+def _print_alarms(found: dict | None, every: bool) -> None:
+    """Issue 21: the label-free drift alarms, one line each without ground truth (else their count)."""
+    from covviz.diagnosis.detector import describe_alarm
+
+    alarms = (found or {}).get("alarms", [])
+    if every:
+        for a in alarms[:20]:
+            print(f"  {describe_alarm(a)}")
+        if len(alarms) > 20:
+            print(f"  ... {len(alarms) - 20} more drift alarm(s) in the results JSON (diagnosis.alarms)")
+    elif alarms:
+        print(f"  {len(alarms)} label-free drift alarm(s) (first at frame {alarms[0]['frame']}); "
+              "diagnosis.alarms in the results JSON")
+
+def _drift_observer(watch, recorders):
+    """The detector, and after it (when the run is recorded) the logger of its probability and alarms."""
+    stream = _stream_of(recorders)
+    if stream is None:
+        return watch
+    from covviz.runner import Pipeline
+    from covviz.viz.drift import DriftRecorder
+
+    return Pipeline([watch, DriftRecorder(stream)])
+
+
+def _stream_of(recorders):
+    """The recording stream of ``track``'s recorder pipeline (None without a recording)."""
+    from covviz.viz.logger import RerunLogger
+
+    for ob in recorders:
+        for stage in getattr(ob.observer, "observers", ()):
+            if isinstance(stage, RerunLogger):
+                return stage.stream
+    return None
 
 def _recording_observers(
     args, seq, n_frames: int, stages: list, created: list[Path] | None = None
@@ -217,6 +251,7 @@ def _recording_complete(path: Path) -> bool:
     return bool(recording_complete(path))
 
 def _track(args) -> int:
+    from covviz.diagnosis.detector import drift_watch
     from covviz.diagnosis.drift import Diagnoser
     from covviz.model.image import check_init_box
 
@@ -236,12 +271,13 @@ def _track(args) -> int:
         replays = _counterfactuals(args, seq, n_frames, trackers)
         if replays is not None:
             stages.append(replays)
+        watch = drift_watch(args.detector)  # the label-free drift probability and alarms
         # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
         recorders, rrd = _recording_observers(args, seq, n_frames, stages, created)
     except BaseException:
         _remove_empty(created)
         raise
-    return _run_tracking(args, seq, trackers, replays, recorders, rrd, created)
+    return _run_tracking(args, seq, trackers, replays, recorders, rrd, created, watch)
 
 def _counterfactuals(args, seq, n_frames: int, trackers):
     """The replays of every loss (on by default when the frames after the first have ground truth)."""
@@ -257,11 +293,11 @@ def _counterfactuals(args, seq, n_frames: int, trackers):
                  for name in args.trackers]
     return Counterfactuals(trackers, factories)
 
-def _run_tracking(args, seq, trackers, replays, recorders, rrd, created) -> int:
+def _run_tracking(args, seq, trackers, replays, recorders, rrd, created, watch=None) -> int:
     from covviz.api import run_trackers  # shared with covviz.track: warm the kernels, run, close the trackers
     from covviz.experiments.results import ResultWriter
     from covviz.metrics import nothing_to_score
-    from covviz.runner import FreeSpaceGuard, ResultCollector
+    from covviz.runner import BackgroundObserver, FreeSpaceGuard, ResultCollector
     from covviz.signals import exit_code
 
     # The results are on disk while the run goes (every second, and at the end): what a kill, a
@@ -271,7 +307,9 @@ def _run_tracking(args, seq, trackers, replays, recorders, rrd, created) -> int:
     writer = ResultWriter(args.out)
     guard = FreeSpaceGuard([args.out, *([rrd] if rrd is not None else [])])
     collector = ResultCollector()
-    observers = [*getattr(args, "observers", []), guard, *recorders, writer, collector]
+    # The detector on a thread of its own, before the diagnosis' (whose recorder closes the stream last).
+    drift = [] if watch is None else [BackgroundObserver(_drift_observer(watch, recorders))]
+    observers = [*getattr(args, "observers", []), guard, *drift, *recorders, writer, collector]
     where = args.out / seq.name
     t0 = time.perf_counter()
     code = 0
@@ -314,6 +352,7 @@ def _run_tracking(args, seq, trackers, replays, recorders, rrd, created) -> int:
         head = f"{res.sequence} · {res.tracker} (seed {res.seed}): {len(res.boxes)} frames, {res.fps:.1f} fps"
         if nothing_to_score(res.groundtruth):
             print(f"{head}\n  nothing to score: no ground truth after the first frame, whose box is the one given")
+            _print_alarms(doc.get("diagnosis"), every=True)
             continue
         print(
             f"{head}\n"
@@ -322,6 +361,7 @@ def _run_tracking(args, seq, trackers, replays, recorders, rrd, created) -> int:
             f"mean IoU {m['mean_iou']:.3f}   ({m['n_skipped']} frames without ground truth skipped)"
         )
         _print_diagnosis(doc.get("diagnosis"))
+        _print_alarms(doc.get("diagnosis"), every=False)
     print(f"results in {where}/  ({wall:.1f} s wall)")
     if rrd is not None and not code:
         print(f"recording in {rrd}   open it with: rerun {_q(rrd)}")

@@ -58,6 +58,7 @@ import sys
 from collections import deque
 from collections.abc import Iterator
 from collections.abc import Sequence as Seq
+from dataclasses import replace
 from pathlib import Path
 
 from covviz import __version__
@@ -466,6 +467,7 @@ def bench(
     retries: int = 1,
     executor=None,
     counterfactual: bool = False,
+    detector: str | None = None,
 ) -> dict:
     """Run ``trackers`` on every sequence under ``root``; write results and a report to ``out``.
 
@@ -505,6 +507,8 @@ def bench(
         making one from ``jobs``/``cluster``; it is not closed.
     counterfactual : bool
         Replay every loss inside its job (:mod:`covviz.diagnosis.counterfactual`).
+    detector : str, optional
+        A drift model's JSON text (``covviz calibrate``) for every job; None: the shipped models.
 
     Returns
     -------
@@ -549,13 +553,13 @@ def bench(
     with lock_results_folder(out):
         return _bench_locked(
             root, out, sequences, trackers, configs, seeds, jobs, max_frames, particles, force, progress,
-            report, config, cluster, retries, executor, variant_configs, counterfactual,
+            report, config, cluster, retries, executor, variant_configs, counterfactual, detector,
         )
 
 
 def _bench_locked(
     root, out, sequences, trackers, configs, seeds, jobs, max_frames, particles, force, progress, report,
-    config, cluster, retries, executor, variant_configs=None, counterfactual=False,
+    config, cluster, retries, executor, variant_configs=None, counterfactual=False, detector=None,
 ) -> dict:
     from covviz.trackers import STOCHASTIC
     from covviz.trackers.variants import base_name
@@ -580,6 +584,8 @@ def _bench_locked(
     manifest["configs"] = {**((old or {}).get("configs") or {}), **configs}
 
     all_jobs = plan_jobs(sequences, trackers, seeds, particles, max_frames, config, variant_configs, counterfactual)
+    if detector is not None:  # every job's drift model (a covviz calibrate file's text)
+        all_jobs = [replace(j, detector=detector) for j in all_jobs]
     todo = all_jobs if force else [j for j in all_jobs if not _is_done(j, out, configs[j.tracker])]
     skipped = len(all_jobs) - len(todo)
     write_manifest(out, manifest)

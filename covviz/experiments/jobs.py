@@ -77,6 +77,7 @@ class Job:
     max_frames: int | None
     config: str | None = None
     counterfactual: bool = False
+    detector: str | None = None  # a drift model's JSON text (covviz bench --detector), None: the shipped ones
 
     @property
     def label(self) -> str:
@@ -195,6 +196,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
 
     from covviz.data.sequences import open_sequence
     from covviz.diagnosis.counterfactual import with_replays
+    from covviz.diagnosis.detector import DriftModel, drift_watch
     from covviz.diagnosis.drift import Diagnoser
     from covviz.experiments.results import versions
     from covviz.metrics import (
@@ -219,12 +221,14 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
 
         replays = Counterfactuals([tracker], [job.make_tracker])
         stages.append(replays)
+    watch = drift_watch(None if job.detector is None else DriftModel.from_dict(json.loads(job.detector)))
     t0 = time.perf_counter()
     with limit_threads(threads), contextlib.closing(tracker) if hasattr(tracker, "close") else contextlib.nullcontext():
-        # The drift diagnosis on its own thread, overlapping the tracker (it never changes a box); the
-        # replays of its losses after the last frame.
-        res = run(tracker, seq, [failures, BackgroundObserver(Pipeline(stages))], max_frames=job.max_frames,
-                  seed=job.seed, checkpoints=None if replays is None else replays.config.checkpoints)
+        # The label-free detector and the drift diagnosis each on a thread of their own, overlapping the
+        # tracker (neither changes a box); the replays of the diagnosed losses after the last frame.
+        res = run(tracker, seq, [failures, BackgroundObserver(watch), BackgroundObserver(Pipeline(stages))],
+                  max_frames=job.max_frames, seed=job.seed,
+                  checkpoints=None if replays is None else replays.config.checkpoints)
     wall = time.perf_counter() - t0
     report = diagnoser.report(0)
     if replays is not None and replays.replays:
@@ -238,8 +242,8 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
         },
         "thresholds": {"precision_at": PRECISION_AT, "on_track_gamma": ON_TRACK_GAMMA},
         "failed_frames": failures.failed,
-        "diagnosis": report,
-        "diagnosis_config": diagnoser.config.as_dict(),
+        "diagnosis": {**report, **watch.report(0, res)},
+        "diagnosis_config": {**diagnoser.config.as_dict(), **watch.config_dict()},
         "bench": {
             "jobs": slots,
             "threads": threads,

@@ -223,10 +223,11 @@ class ResultWriter(ProgressObserver):
         self._failed = False
         self._lines: dict[int, list[str]] = {}  # per run: the formatted boxes so far (they never change)
         self._diagnosis = None
+        self._drift = None
         self._replays: tuple = ()
 
     def on_start(self, start, found) -> None:
-        self._diagnosis = found.diagnosis
+        self._diagnosis, self._drift = found.diagnosis, found.drift
 
     def on_progress(self, results, found) -> None:
         t0 = time.perf_counter()
@@ -265,6 +266,9 @@ class ResultWriter(ProgressObserver):
         if d is not None:
             out["diagnosis"] = report = d.report(j)
             out["diagnosis_config"] = d.config.as_dict()
+            if self._drift is not None:  # the label-free signals, drift probability and alarms
+                report.update(self._drift.report(j))
+                out["diagnosis_config"] = {**out["diagnosis_config"], **self._drift.config_dict()}
             if j < len(self._replays):  # each loss's replays and verdict
                 from covviz.diagnosis.counterfactual import with_replays
 

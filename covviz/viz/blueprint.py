@@ -88,10 +88,12 @@ def build_blueprint(
     )
     plots = [
         rrb.TimeSeriesView(
-            name="IoU with the truth (bold) · particles' best IoU (thin) · x drift ▼ lost ▲ recovered * suspect",
+            name="IoU with the truth (bold) · particles' best IoU (thin) · drift probability (label-free) · "
+            "x drift ▼ lost ▲ recovered * suspect",
             origin="/",
             contents=[f"+ /{p.metrics}/**" for p in tp] + [f"- /{p.center_error}" for p in tp]
-            + [f"+ /{p.why_series('reach')}" for p in pp],
+            + [f"+ /{p.why_series('reach')}" for p in pp]
+            + [f"+ /{p.root}/drift/**" for p in tp],  # issue 21: covviz.viz.drift
             axis_y=rrb.ScalarAxis(range=(0.0, 1.05)),
             plot_legend=rrb.PlotLegend(visible=False),
         ),

@@ -43,9 +43,13 @@ out of the particles' reach), **scale** (the centre held, the size went wrong), 
 before, and the tracker follows a look-alike the likelihood scores as well), **occlusion** (some
 quadrants changed while another held, or something static stands in front), **appearance** (the
 whole target changed faster than the templates follow), **impoverishment** (the weights sat on a
-handful of particles), else **unknown**. Without ground truth, **suspects** (weights
-collapsing, the best distance leaving its running range, a second mode of the weights, the scale
-running away) warn from the filter's own numbers. Thresholds: `config`, `diagnosis`.
+handful of particles), else **unknown**. Without ground truth, the **drift probability** (in
+the IoU plot) comes from label-free signals alone: the forward-backward optical-flow error in
+the box, its look against its first and recent looks, a peak-to-sidelobe ratio and, for
+particle filters, the weights. A **drift alarm** row in Events shows where it crossed its
+threshold, with the signals that drove it. The older **suspects** (weights collapsing, the best
+distance leaving its running range, a second mode, the scale running away) are still listed.
+Thresholds: `config`, `diagnosis`.
 
 ## Frame · top particles · estimate · ground truth
 * **red box**: ground truth. **Coloured box** (yellow for `manifold`): the estimate as scored;

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import logging
-import re
 import time
 from collections import deque
 from collections.abc import Sequence as Seq
@@ -313,7 +312,7 @@ class RerunLogger(Observer):
         names: list[str] = []
         for i, info in enumerate(start.trackers):
             # Entity-path friendly, and drawable by the viewer's font.
-            base = re.sub(r"[^A-Za-z0-9_.+-]", "_", info.name) or f"tracker{i}"
+            base = P.tracker_entity(info.name) or f"tracker{i}"
             name, k = base, 2
             while name in names:
                 name, k = f"{base}-{k}", k + 1

@@ -39,6 +39,7 @@ rate, ``time`` (seconds since the first frame).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 __all__ = [
@@ -70,6 +71,11 @@ LOGGER_TIME = "logger/time"
 #: Entities of the MDS figures of ``covviz mds`` (see :mod:`covviz.viz.mds_figures`).
 FIGURE_SEPARATION = "figures/separation"
 FIGURE_RANDOM_WALK = "figures/random_walk"
+
+
+def tracker_entity(name: str) -> str:
+    """A tracker's name as an entity path part (and one the viewer's font draws): ``manifold@b`` -> ``manifold_b``."""
+    return re.sub(r"[^A-Za-z0-9_.+-]", "_", str(name))
 
 
 @dataclass(frozen=True)

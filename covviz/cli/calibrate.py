@@ -1,0 +1,93 @@
+"""``covviz calibrate``: fit the drift-probability model on labelled bench runs (and ``--detector FILE``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from covviz.cli.common import UsageError
+
+CALIBRATE_EPILOG = """\
+examples:
+  covviz bench ../shared/sequences --trackers manifold --seeds 3 --out runs/bench
+  covviz calibrate runs/bench --out my-detector.json            # one model on every run there
+  covviz calibrate runs/bench --trackers csrt,kcf --out cv.json   # only these trackers' runs
+  covviz calibrate runs/bench --seeds 0,1,2 --all-families covviz/diagnosis/models   # the shipped models
+  covviz track clip.mp4 --box 120,80,40,60 --detector my-detector.json
+
+The runs need ground truth (a frame is off track when its IoU is below 0.5) and the
+per-frame signals that covviz bench saves (diagnosis.signals); no tracker is re-run.
+The model is a logistic regression on the signals and their short history; its alarm
+threshold and hysteresis are chosen on the same runs (see covviz/diagnosis/calibrate.py).
+"""
+
+
+def add_detector_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--detector", type=Path, metavar="FILE",
+                   help="drift model from 'covviz calibrate' (default: the model shipped for each tracker's family)")
+
+
+def detector_text(path: Path | None) -> str | None:
+    """``--detector FILE``: the model's JSON text, checked (None without the option)."""
+    if path is None:
+        return None
+    from covviz.diagnosis.detector import DriftModel
+
+    return json.dumps(DriftModel.load(path).as_dict())
+
+
+def _seeds(text: str) -> set[int]:
+    try:
+        out: set[int] = set()
+        for part in text.split(","):
+            a, _, b = part.partition("-")
+            out.update(range(int(a), int(b or a) + 1))
+        return out
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seeds like 0,1,2 or 0-2, got {text!r}") from None
+
+
+def add_calibrate_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "calibrate",
+        help="fit the drift-probability model on labelled bench runs",
+        description="Fit the label-free drift detector (a logistic model on the per-frame signals) on the "
+        "labelled runs of a 'covviz bench' folder and write it as a JSON file for --detector.",
+        epilog=CALIBRATE_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("bench_dir", type=Path, metavar="BENCH_DIR", help="a 'covviz bench --out' folder")
+    p.add_argument("--out", type=Path, metavar="FILE", help="the model file to write")
+    p.add_argument("--all-families", type=Path, metavar="DIR",
+                   help="instead: one model per tracker family found (DIR/FAMILY.json) plus DIR/generic.json")
+    p.add_argument("--trackers", metavar="NAME[,NAME…]", help="only these trackers' runs (default: all)")
+    p.add_argument("--seeds", type=_seeds, metavar="LIST", help="only these seeds of stochastic trackers, e.g. 0-2")
+    p.set_defaults(func=cmd_calibrate)
+    return p
+
+
+def cmd_calibrate(args) -> int:
+    from covviz.diagnosis.calibrate import fit_families, fit_model, load_runs
+    from covviz.diagnosis.detector import family_of
+
+    if (args.out is None) == (args.all_families is None):
+        raise UsageError("give --out FILE (one model) or --all-families DIR (one per family), not both or neither")
+    trackers = None if args.trackers is None else set(args.trackers.split(","))
+    runs = load_runs(args.bench_dir, trackers, args.seeds)
+    info = {"id": f"{args.bench_dir.name}"}
+    if args.all_families is not None:
+        for fam, m in fit_families(runs, info).items():
+            path = m.save(args.all_families / f"{fam}.json")
+            print(f"{fam}: {_describe(m)} -> {path}")
+        return 0
+    fams = {family_of(r.tracker) for r in runs}
+    m = fit_model(runs, fams.pop() if len(fams) == 1 else "generic", fit_info=info)
+    print(f"{m.family}: {_describe(m)} -> {m.save(args.out)}")
+    return 0
+
+
+def _describe(m) -> str:
+    f = m.fit
+    return (f"{f['runs']} runs, {f['frames']} frames ({f['off_track_frames']} off track), {f['losses']} losses; "
+            f"alarm at p >= {m.alarm.threshold:.3f}, released below {m.alarm.release:.3f}")

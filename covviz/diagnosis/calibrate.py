@@ -1,0 +1,411 @@
+"""Fitting the drift model on labelled runs, and its strict leave-one-sequence-out evaluation.
+
+Everything here reads results on disk (``covviz bench`` folders): each run's
+``diagnosis.signals`` (label-free, saved frame by frame) and ``diagnosis.frame_iou``
+(the labels: a frame is *off track* when its IoU with the ground truth is below
+:data:`OFF_TRACK_IOU`). No tracker is re-run.
+
+The alarm rule (threshold, release, cooldown) of the model and of every single
+signal used as a baseline is chosen by :func:`choose_alarm` — the same rule for
+all — on the training runs only.
+
+Events (as ``covviz.diagnosis.events`` defines them): a *loss* is an IoU below
+0.1 after a frame at 0.5 or more; its drift began where
+:func:`covviz.diagnosis.events.drift_onset` says. An alarm is *right* when it
+falls between :data:`MATCH_BEFORE` frames before the drift began and
+:data:`MATCH_AFTER` frames after the loss; an alarm on a frame still off track
+(IoU < 0.5) and outside every window is neither right nor false; every other
+alarm is false.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from covviz.diagnosis.detector import (
+    COOLDOWN,
+    FAMILIES,
+    DriftModel,
+    Hysteresis,
+    family_of,
+    history_features,
+)
+from covviz.diagnosis.signals import GENERIC_SIGNALS, SIGNALS
+from covviz.errors import InputError
+
+log = logging.getLogger("covviz")
+
+__all__ = [
+    "BASELINES",
+    "OFF_TRACK_IOU",
+    "Run",
+    "alarm_frames",
+    "choose_alarm",
+    "fit_model",
+    "load_runs",
+    "losses_of",
+    "score_alarms",
+]
+
+#: A frame is off track (the label the model is fitted on) below this IoU with the ground truth.
+OFF_TRACK_IOU = 0.5
+#: An alarm matches a loss from this many frames before its drift began ...
+MATCH_BEFORE = 10
+#: ... to this many after the loss.
+MATCH_AFTER = 5
+#: Regularisation of the logistic regression (inverse strength), fixed a priori.
+C_REG = 1.0
+#: Quantile levels of the training scores tried as thresholds, and release offsets below them.
+THRESHOLD_LEVELS = (0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.93, 0.95, 0.97, 0.98, 0.99, 0.995, 0.998)
+RELEASE_OFFSETS = (0.0, 0.1, 0.3)
+#: The rule: the most recall at a training precision of at least this; if none reaches it, the best F1.
+MIN_PRECISION = 0.5
+#: Single signals scored as baselines: name -> (signal, sign); the score is sign * signal (high = trouble).
+BASELINES = {"FB error": ("fb_error", 1.0), "PSR": ("psr", -1.0), "ESS": ("ess", -1.0), "distance z": ("dmin_z", 1.0)}
+
+
+@dataclass(frozen=True, eq=False)
+class Run:
+    """One result's signals and labels."""
+
+    sequence: str
+    tracker: str
+    seed: int | None
+    rows: np.ndarray  # (n, len(SIGNALS)), nan where a signal does not apply
+    iou: np.ndarray  # (n,), nan without ground truth
+    losses: tuple = field(default=())  # ((drift began, lost at), ...) 1-based
+
+    @property
+    def off(self) -> np.ndarray:
+        return self.iou < OFF_TRACK_IOU
+
+    @property
+    def labelled(self) -> np.ndarray:
+        m = np.isfinite(self.iou)
+        m[:1] = False  # the first frame is the given box
+        return m
+
+
+def _floats(v) -> np.ndarray:
+    return np.array([np.nan if x is None else float(x) for x in v], dtype=np.float64)
+
+
+def losses_of(iou: np.ndarray) -> tuple:
+    """``(drift began, lost at)`` of every loss of an IoU series (1-based), as the event detector finds them."""
+    from covviz.diagnosis.events import EventDetector
+
+    det = EventDetector()
+    for i, v in enumerate(iou):
+        det.update(i + 1, float(v) if np.isfinite(v) else None)
+    return tuple(zip(det.drifts, det.losses))
+
+
+def load_runs(bench_dir, trackers=None, seeds=None) -> list[Run]:
+    """Every result under ``bench_dir`` with signals and labels (optionally only these trackers / seeds).
+
+    Raises
+    ------
+    InputError
+        If the folder does not exist or holds no such result.
+    """
+    root = Path(bench_dir)
+    if not root.is_dir():
+        raise InputError(f"{root}: no such folder (give a 'covviz bench --out' folder)")
+    runs: list[Run] = []
+    skipped = 0
+    for js in sorted(root.glob("*/*.json")):
+        try:
+            doc = json.loads(js.read_text())
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+            skipped += 1
+            continue
+        if not isinstance(doc, dict) or "tracker" not in doc:
+            continue
+        if trackers is not None and doc["tracker"] not in trackers:
+            continue
+        if seeds is not None and doc.get("seed") is not None and doc["seed"] not in seeds:
+            continue
+        dg = doc.get("diagnosis") or {}
+        sig, fi = dg.get("signals"), dg.get("frame_iou")
+        if not sig or fi is None or doc.get("interrupted"):
+            skipped += 1
+            continue
+        n = len(fi)
+        rows = np.stack([_floats(sig[k]) if k in sig else np.full(n, np.nan) for k in SIGNALS], axis=1)
+        iou = _floats(fi)
+        runs.append(Run(doc.get("sequence", js.parent.name), doc["tracker"], doc.get("seed"), rows, iou,
+                        losses_of(iou)))
+    if skipped:
+        log.info("%d results without signals or labels skipped (re-run them with this covviz)", skipped)
+    if not runs:
+        raise InputError(f"{root}: no results with drift signals and ground truth "
+                         "(run 'covviz bench' on labelled sequences with this covviz first)")
+    return runs
+
+
+# --------------------------------------------------------------------------- #
+# alarms and their scores
+# --------------------------------------------------------------------------- #
+def alarm_frames(scores, rule: Hysteresis) -> np.ndarray:
+    """0-based frames where ``rule`` raises an alarm on ``scores`` (vectorised :meth:`Hysteresis.step`)."""
+    v = np.asarray(scores, dtype=np.float64)
+    v = np.where(np.isfinite(v), v, -np.inf)
+    above = np.flatnonzero(v >= rule.threshold)
+    if not len(above):
+        return np.zeros(0, dtype=int)
+    below = v < rule.release
+    # consecutive frames below the release level ending at each frame
+    idx = np.arange(len(v))
+    last_not = np.maximum.accumulate(np.where(~below, idx, -1))
+    run = idx - last_not
+    ends = np.flatnonzero(run >= rule.cooldown)
+    out = []
+    i = int(above[0])
+    while True:
+        out.append(i)
+        k = np.searchsorted(ends, i + rule.cooldown)  # the episode cannot end before cooldown frames
+        k = k if k < len(ends) and ends[k] > i else len(ends)
+        if k >= len(ends):
+            break
+        end = int(ends[k])
+        j = np.searchsorted(above, end + 1)
+        if j >= len(above):
+            break
+        i = int(above[j])
+    return np.asarray(out, dtype=int)
+
+
+def score_alarms(alarms, run: Run) -> dict:
+    """Event-level counts of one run's alarms (0-based frames) against its losses (module docstring)."""
+    frames = np.asarray(alarms, dtype=int) + 1
+    windows = [(d - MATCH_BEFORE, lost + MATCH_AFTER, lost) for d, lost in run.losses]
+    tp = fp = 0
+    for f in frames:
+        if any(a <= f <= b for a, b, _ in windows):
+            tp += 1
+        else:
+            v = run.iou[f - 1]
+            if np.isfinite(v) and v >= OFF_TRACK_IOU:
+                fp += 1
+    found, leads = 0, []
+    for a, b, lost in windows:
+        hit = frames[(frames >= a) & (frames <= b)]
+        if len(hit):
+            found += 1
+            leads.append(int(lost - hit.min()))
+    on = int(np.sum(run.labelled & (run.iou >= OFF_TRACK_IOU)))
+    return {"alarms": len(frames), "tp": tp, "fp": fp, "losses": len(windows), "found": found, "leads": leads,
+            "on_track": on}
+
+
+def _pool(counts: list[dict]) -> dict:
+    out = {k: sum(c[k] for c in counts) for k in ("alarms", "tp", "fp", "losses", "found", "on_track")}
+    out["leads"] = [x for c in counts for x in c["leads"]]
+    return out
+
+
+def _pr(c: dict) -> tuple[float, float]:
+    p = c["tp"] / (c["tp"] + c["fp"]) if c["tp"] + c["fp"] else float("nan")
+    r = c["found"] / c["losses"] if c["losses"] else float("nan")
+    return p, r
+
+
+def choose_alarm(scores: list[np.ndarray], runs: list[Run]) -> Hysteresis:
+    """The alarm rule for a score on training runs: thresholds at quantiles of their scores, releases below.
+
+    The rule is the same for the model and for every baseline signal: the most event recall at a
+    precision of at least :data:`MIN_PRECISION`; if no candidate reaches it, the best F1; ties go to fewer
+    false alarms.
+    """
+    allv = np.concatenate([s[r.labelled] for s, r in zip(scores, runs)])
+    allv = allv[np.isfinite(allv)]
+    if not len(allv):
+        return Hysteresis(np.inf, np.inf, COOLDOWN)
+    best, best_key = None, None
+    for q in THRESHOLD_LEVELS:
+        th = float(np.quantile(allv, q))
+        for off in RELEASE_OFFSETS:
+            rel = float(np.quantile(allv, max(q - off, 0.0)))
+            rule = Hysteresis(th, min(rel, th), COOLDOWN)
+            c = _pool([score_alarms(alarm_frames(s, rule), r) for s, r in zip(scores, runs)])
+            p, rc = _pr(c)
+            p, rc = (0.0 if not np.isfinite(p) else p), (0.0 if not np.isfinite(rc) else rc)
+            f1 = 2 * p * rc / (p + rc) if p + rc else 0.0
+            key = (1, rc, -c["fp"]) if p >= MIN_PRECISION and rc > 0 else (0, f1, -c["fp"])
+            if best_key is None or key > best_key:
+                best, best_key = rule, key
+    return best
+
+
+# --------------------------------------------------------------------------- #
+# fitting
+# --------------------------------------------------------------------------- #
+def signals_for(trackers) -> tuple:
+    """The signals a model of these trackers reads: all of them for particle filters, else the generic ones."""
+    from covviz.trackers import STOCHASTIC
+
+    return SIGNALS if trackers and all(t in STOCHASTIC for t in trackers) else GENERIC_SIGNALS
+
+
+def _design(runs: list[Run], signals) -> list[np.ndarray]:
+    cols = np.array([SIGNALS.index(s) for s in signals])
+    return [history_features(r.rows[:, cols], signals) for r in runs]
+
+
+def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray] | None = None,
+              fit_info: dict | None = None) -> DriftModel:
+    """A logistic drift model fitted on ``runs`` (off track: IoU < 0.5), with its alarm rule chosen on them too.
+
+    Raises
+    ------
+    InputError
+        If the runs have no off-track or no on-track frame (nothing to learn from).
+    """
+    from sklearn import __version__ as skv
+    from sklearn.linear_model import LogisticRegression
+
+    signals = tuple(signals or signals_for(sorted({r.tracker for r in runs})))
+    feats = feats if feats is not None else _design(runs, signals)
+    X = np.concatenate([f[r.labelled] for f, r in zip(feats, runs)])
+    y = np.concatenate([r.off[r.labelled] for r in runs])
+    if y.all() or not y.any():
+        raise InputError("the runs have " + ("no frame on track" if y.all() else "no frame off track (IoU < 0.5)")
+                         + ": nothing to calibrate on; add runs with and without losses")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        center = np.nanmean(X, axis=0)
+        scale = np.nanstd(X, axis=0)
+    center = np.where(np.isfinite(center), center, 0.0)
+    scale = np.where(np.isfinite(scale) & (scale > 1e-9), scale, 1.0)
+    Z = (X - center) / scale
+    Z = np.where(np.isfinite(Z), Z, 0.0)
+    lr = LogisticRegression(C=C_REG, max_iter=2000)
+    lr.fit(Z, y)
+    model = DriftModel(family, signals, center, scale, lr.coef_[0].copy(), float(lr.intercept_[0]),
+                       Hysteresis(np.inf, np.inf, COOLDOWN))
+    probs = [model.probability(f) for f in feats]
+    rule = choose_alarm(probs, runs)
+    info = {
+        "off_track_iou": OFF_TRACK_IOU,
+        "C": C_REG,
+        "runs": len(runs),
+        "sequences": sorted({r.sequence for r in runs}),
+        "trackers": sorted({r.tracker for r in runs}),
+        "seeds": sorted({r.seed for r in runs if r.seed is not None}),
+        "frames": len(y),
+        "off_track_frames": int(y.sum()),
+        "losses": int(sum(len(r.losses) for r in runs)),
+        "sklearn": skv,
+        **(fit_info or {}),
+    }
+    return DriftModel(family, signals, center, scale, model.coef, model.intercept, rule, info)
+
+
+def family_runs(runs: list[Run], family: str) -> list[Run]:
+    """The runs a family's model is fitted on (``generic``: every run)."""
+    if family == "generic":
+        return list(runs)
+    return [r for r in runs if family_of(r.tracker) == family]
+
+
+def fit_families(runs: list[Run], fit_info: dict | None = None) -> dict[str, DriftModel]:
+    """One model per family present in ``runs``, plus the generic fallback (generic signals, every run)."""
+    out = {}
+    for fam in [*FAMILIES, "generic"]:
+        rs = family_runs(runs, fam)
+        if rs:
+            out[fam] = fit_model(rs, fam, GENERIC_SIGNALS if fam == "generic" else None, fit_info=fit_info)
+    return out
+
+
+# --------------------------------------------------------------------------- #
+# leave-one-sequence-out evaluation
+# --------------------------------------------------------------------------- #
+def loso(runs: list[Run], tracker: str, family: str | None = None) -> dict:
+    """Leave-one-sequence-out scores of ``tracker``: the model of its family and each baseline.
+
+    For each sequence, the model is fitted (and its alarm rule chosen) on the family's runs of the other
+    sequences, and so is each baseline's threshold; the held-out sequence's runs of ``tracker`` are then
+    scored. Returns, per method (``model`` and each of :data:`BASELINES`), the held-out scores and alarm
+    counts of every run, keyed by sequence.
+    """
+    family = family or family_of(tracker)
+    pool = family_runs(runs, family)
+    signals = signals_for(sorted({r.tracker for r in pool}))
+    feats = dict(zip(map(id, pool), _design(pool, signals)))
+    seqs = sorted({r.sequence for r in pool if r.tracker == tracker})
+    out: dict = {"model": {}, **{b: {} for b in BASELINES}}
+    for q in seqs:
+        train = [r for r in pool if r.sequence != q]
+        test = [r for r in pool if r.sequence == q and r.tracker == tracker]
+        if not train or not test:
+            continue
+        try:
+            m = fit_model(train, family, signals, [feats[id(r)] for r in train])
+        except InputError:
+            continue
+        out["model"][q] = [(m.probability(feats[id(r)]), score_alarms(alarm_frames(m.probability(feats[id(r)]),
+                                                                                   m.alarm), r), r) for r in test]
+        for name, (sig, sign) in BASELINES.items():
+            k = SIGNALS.index(sig)
+            if not np.isfinite(np.concatenate([r.rows[:, k] for r in train])).any():
+                continue
+            rule = choose_alarm([sign * r.rows[:, k] for r in train], train)
+            out[name][q] = [(sign * r.rows[:, k], score_alarms(alarm_frames(sign * r.rows[:, k], rule), r), r)
+                            for r in test]
+    return out
+
+
+def summarise(per_seq: dict, rng: np.random.Generator, n_boot: int = 1000) -> dict:
+    """Pooled scores of held-out runs (``{sequence: [(scores, counts, run), ...]}``) with bootstrap intervals.
+
+    Bootstrap: sequences drawn with replacement (all runs of a drawn sequence together), 95% percentile
+    intervals of event precision and recall.
+    """
+    from sklearn.metrics import average_precision_score
+
+    rng = np.random.default_rng(rng)
+    if not per_seq:
+        return {}
+    items = [x for v in per_seq.values() for x in v]
+    s = np.concatenate([sc[r.labelled] for sc, _, r in items])
+    y = np.concatenate([r.off[r.labelled] for _, _, r in items])
+    s = np.where(np.isfinite(s), s, -1e300)
+    auc = float(average_precision_score(y, s)) if y.any() and not y.all() else float("nan")
+    c = _pool([cnt for _, cnt, _ in items])
+    p, r = _pr(c)
+    seqs = list(per_seq)
+    per = {q: _pool([cnt for _, cnt, _ in per_seq[q]]) for q in seqs}
+    bp, br = [], []
+    for _ in range(n_boot):
+        draw = rng.integers(0, len(seqs), len(seqs))
+        cb = _pool([per[seqs[i]] for i in draw])
+        pb, rb = _pr(cb)
+        if np.isfinite(pb):
+            bp.append(pb)
+        if np.isfinite(rb):
+            br.append(rb)
+
+    def ci(v):
+        return (float(np.quantile(v, 0.025)), float(np.quantile(v, 0.975))) if v else (float("nan"),) * 2
+
+    return {
+        "pr_auc": auc,
+        "base_rate": float(y.mean()) if len(y) else float("nan"),
+        "precision": p,
+        "precision_ci": ci(bp),
+        "recall": r,
+        "recall_ci": ci(br),
+        "lead": float(np.median(c["leads"])) if c["leads"] else float("nan"),
+        "false_per_1000": 1000 * c["fp"] / c["on_track"] if c["on_track"] else float("nan"),
+        **c,
+        "runs": len(items),
+        "sequences": len(seqs),
+    }

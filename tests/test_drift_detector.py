@@ -1,0 +1,290 @@
+"""The label-free drift signals, the drift model, its alarms and their scoring (issue 21)."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from covviz.data.frames import Sequence
+from covviz.diagnosis.calibrate import (
+    Run,
+    alarm_frames,
+    choose_alarm,
+    fit_model,
+    load_runs,
+    losses_of,
+    score_alarms,
+)
+from covviz.diagnosis.detector import (
+    DriftModel,
+    DriftWatch,
+    Hysteresis,
+    _AlarmState,
+    describe_alarm,
+    family_of,
+    history_features,
+    shipped_model,
+)
+from covviz.diagnosis.signals import GENERIC_SIGNALS, SIGNALS, fb_flow, psr
+from covviz.errors import InputError
+
+
+def _texture(rng, h=120, w=160) -> np.ndarray:
+    img = rng.uniform(0, 255, (h // 4, w // 4)).astype(np.float32)
+    return cv2.resize(cv2.GaussianBlur(img, (0, 0), 1.0), (w, h), interpolation=cv2.INTER_CUBIC).clip(0, 255).astype(
+        np.uint8)
+
+
+# --------------------------------------------------------------------------- #
+# signals
+# --------------------------------------------------------------------------- #
+def test_fb_flow_recovers_a_known_shift_with_no_fb_error(rng):
+    a = _texture(rng)
+    M = np.float32([[1, 0, 3.0], [0, 1, -2.0]])  # the content moves 3 px right, 2 px up
+    b = cv2.warpAffine(a, M, (a.shape[1], a.shape[0]), borderMode=cv2.BORDER_REFLECT)
+    fb, fail, flow = fb_flow(a, b, (50, 40, 40, 30))
+    np.testing.assert_allclose(flow, [3.0, -2.0], atol=0.15)
+    assert fb < 0.01  # box sizes
+    assert fail < 0.2
+
+
+def test_fb_flow_of_unrelated_frames_is_large(rng):
+    a, b = _texture(rng), _texture(rng)
+    fb, fail, _ = fb_flow(a, b, (50, 40, 40, 30))
+    assert fail > 0.3 or fb > 0.05
+
+
+def test_fb_flow_off_frame_box_is_nan():
+    g = np.zeros((50, 50), np.uint8)
+    fb, fail, flow = fb_flow(g, g, (200, 200, 10, 10))
+    assert np.isnan(fb) and fail == 1.0 and np.isnan(flow).all()
+
+
+def test_psr_by_hand():
+    d = np.array([0.0, 2.0, 4.0, 3.0, 5.0])
+    side = np.array([False, True, True, True, True])
+    s = d[side]
+    assert psr(d, 0, side) == pytest.approx((s.mean() - 0.0) / (s.std() + 1e-6))
+    assert np.isnan(psr(d, 0, np.array([False, True, False, False, False])))
+
+
+# --------------------------------------------------------------------------- #
+# alarms
+# --------------------------------------------------------------------------- #
+def _online(scores, rule):
+    st_ = _AlarmState()
+    return [i for i, v in enumerate(scores) if rule.step(st_, v)]
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.one_of(st.floats(0, 1), st.just(float("nan"))), min_size=0, max_size=80),
+    st.floats(0.2, 0.9),
+    st.floats(0.0, 0.3),
+    st.integers(1, 6),
+)
+def test_vectorised_alarms_equal_the_online_rule(scores, th, gap, cool):
+    rule = Hysteresis(th, th - gap, cool)
+    assert alarm_frames(scores, rule).tolist() == _online(scores, rule)
+
+
+def test_hysteresis_raises_once_per_episode():
+    rule = Hysteresis(0.8, 0.5, cooldown=3)
+    p = [0.1, 0.9, 0.6, 0.9, 0.4, 0.95, 0.3, 0.2, 0.1, 0.85, 0.1]
+    # frame 1 raises; 0.6 and 0.4 do not end it (0.6 >= release; 0.4 is one frame below), 0.95 is the same
+    # episode; three frames below 0.5 (6, 7, 8) end it; 0.85 at 9 raises again.
+    assert _online(p, rule) == [1, 9]
+    assert rule.episodes(p) == [(1, 5), (9, 9)]
+    with pytest.raises(ValueError, match="release"):
+        Hysteresis(0.5, 0.6)
+
+
+def _run(iou, rows=None, seq="A", tracker="manifold", seed=0):
+    iou = np.asarray(iou, dtype=float)
+    rows = np.zeros((len(iou), len(SIGNALS))) if rows is None else rows
+    return Run(seq, tracker, seed, rows, iou, losses_of(iou))
+
+
+def test_score_alarms_by_hand():
+    iou = np.r_[np.full(20, 0.8), np.linspace(0.7, 0.05, 6), np.full(10, 0.02), np.full(14, 0.8)]
+    r = _run(iou)
+    (drift, lost), = r.losses
+    assert lost == 26  # 1-based: the first frame below 0.1 (0-based 25)
+    # one alarm right before the drift, one while lost (ignored), one on track far away (false)
+    c = score_alarms([drift - 1 - 3, 33, 45], r)  # 0-based frames
+    assert (c["tp"], c["fp"], c["found"], c["losses"]) == (1, 1, 1, 1)
+    assert c["leads"] == [lost - (drift - 3)]
+    assert c["on_track"] == int(np.sum(iou[1:] >= 0.5))
+
+
+def test_choose_alarm_finds_a_signal_that_rises_before_each_loss(rng):
+    runs, scores = [], []
+    for k in range(4):
+        iou = np.r_[np.full(60, 0.8), np.full(20, 0.02), np.full(40, 0.8)]
+        s = rng.normal(0, 0.1, len(iou))
+        s[55:80] += 2.0  # the signal rises 5 frames before the drift
+        runs.append(_run(iou, seq=f"S{k}"))
+        scores.append(s)
+    rule = choose_alarm(scores, runs)
+    c = [score_alarms(alarm_frames(s, rule), r) for s, r in zip(scores, runs)]
+    assert sum(x["found"] for x in c) == 4
+    assert sum(x["fp"] for x in c) == 0
+
+
+# --------------------------------------------------------------------------- #
+# the model
+# --------------------------------------------------------------------------- #
+def _labelled_runs(rng, n_runs=4, n=150):
+    runs = []
+    k = SIGNALS.index("fb_error")
+    for j in range(n_runs):
+        iou = np.r_[np.full(n // 2, 0.8), np.full(n - n // 2, 0.02)]
+        rows = rng.normal(0, 1, (n, len(SIGNALS)))
+        rows[:, k] = np.where(iou < 0.5, 3.0, 0.0) + rng.normal(0, 0.5, n)
+        rows[:, SIGNALS.index("ess")] = np.nan  # a signal that never applies
+        runs.append(_run(iou, rows, seq=f"S{j}"))
+    return runs
+
+
+def test_fit_model_learns_the_informative_signal_and_round_trips_json(rng, tmp_path):
+    runs = _labelled_runs(rng)
+    m = fit_model(runs, "manifold")
+    k = list(m.signals).index("fb_error")
+    assert m.coef[k] > 0 and abs(m.coef[k]) == pytest.approx(np.abs(m.coef[: len(m.signals)]).max())
+    p = m.predict_run(runs[0].rows)
+    assert p[runs[0].off].mean() > 0.8 and p[~runs[0].off].mean() < 0.2
+    m2 = DriftModel.load(m.save(tmp_path / "m.json"))
+    np.testing.assert_allclose(m2.predict_run(runs[1].rows), m.predict_run(runs[1].rows), rtol=1e-5, atol=1e-6)
+    assert json.loads((tmp_path / "m.json").read_text())["version"] == 1
+
+
+def test_fit_model_refuses_runs_without_losses(rng):
+    r = _run(np.full(50, 0.9), rng.normal(0, 1, (50, len(SIGNALS))))
+    with pytest.raises(InputError, match="off track"):
+        fit_model([r], "manifold")
+
+
+def test_bad_detector_files_are_one_line_input_errors(tmp_path):
+    with pytest.raises(InputError, match="no such"):
+        DriftModel.load(tmp_path / "missing.json")
+    (tmp_path / "x.json").write_text('{"format": "other"}')
+    with pytest.raises(InputError, match="not a covviz drift model"):
+        DriftModel.load(tmp_path / "x.json")
+
+
+def test_history_features_now_mean_max_relative():
+    rows = np.array([[0.0, 5.0], [1.0, 2.0], [np.nan, np.nan], [3.0, 4.0]])
+    f = history_features(rows, ("motion", "fb_error"))  # fb_error also relative to its early median
+    a = np.arcsinh(rows)
+    assert f.shape == (4, 7)
+    np.testing.assert_allclose(f[3, :2], a[3])
+    np.testing.assert_allclose(f[3, 2:4], np.nanmean(a, axis=0))
+    np.testing.assert_allclose(f[3, 4:6], np.nanmax(a, axis=0))
+    assert f[3, 6] == pytest.approx(np.arcsinh(4.0 / np.median([5.0, 2.0, 4.0])))
+    assert np.isnan(f[2, 6])
+
+
+def test_families_and_shipped_models():
+    assert family_of("csrt") == "opencv" and family_of("identity") == "generic"
+    for name in ("manifold", "manifold-paper", "ipca", "csrt", "identity"):
+        m = shipped_model(name)
+        assert m is not None
+        assert m.family in (family_of(name), "generic")
+        if m.family in ("opencv", "generic"):
+            assert set(m.signals) <= set(GENERIC_SIGNALS)
+
+
+def test_describe_alarm():
+    a = {"frame": 63, "until": 80, "probability": 0.8, "peak": 0.91, "drivers": ["fb_error", "ess"],
+         "signals": {"fb_error": 0.4, "ess": 0.01}}
+    assert describe_alarm(a) == "frames 63–80: likely off track, p 0.91 — FB error 0.4 box, ESS 0.01"
+
+
+# --------------------------------------------------------------------------- #
+# the observer: no ground truth read, no box changed
+# --------------------------------------------------------------------------- #
+class _NoTruth(Sequence):
+    """The same frames with ground truth only on the first (the initial box), as a user's video."""
+
+    def __init__(self, seq):
+        self._seq = seq
+        self.name = seq.name
+        self.groundtruth = np.full_like(seq.groundtruth, np.nan)
+        self.groundtruth[0] = seq.groundtruth[0]
+
+    def _read(self, i):
+        return self._seq._read(i)
+
+
+def _model_for(signals, rng) -> DriftModel:
+    from covviz.diagnosis.detector import feature_names
+
+    k = len(feature_names(signals))
+    return DriftModel("generic", tuple(signals), np.zeros(k), np.ones(k), rng.normal(0, 0.5, k), -1.0,
+                      Hysteresis(0.6, 0.4, 3))
+
+
+@pytest.mark.parametrize("tracker", ["manifold", "kcf"])
+def test_same_probabilities_without_ground_truth_and_same_boxes_without_the_detector(tracker, rng):
+    from covviz.data.sequences import open_sequence
+    from covviz.runner import run
+    from covviz.trackers import make_tracker
+
+    seq = open_sequence(None)
+    n = 40
+    model = _model_for(SIGNALS if tracker == "manifold" else GENERIC_SIGNALS, rng)
+    out = []
+    for s in (seq, _NoTruth(seq)):
+        w = DriftWatch(model)
+        res = run(make_tracker(tracker, seed=0, n_particles=100 if tracker == "manifold" else None), s, [w],
+                  max_frames=n, seed=0)
+        out.append((res, w.report(0)))
+    bare = run(make_tracker(tracker, seed=0, n_particles=100 if tracker == "manifold" else None), seq, [],
+               max_frames=n, seed=0)
+    (r1, a), (r2, b) = out
+    np.testing.assert_array_equal(r1.boxes, bare.boxes)
+    np.testing.assert_array_equal(r1.boxes, r2.boxes)
+    assert a["signals"] == b["signals"]
+    assert a["drift_probability"] == b["drift_probability"] and len(a["drift_probability"]) == n
+    assert a["alarms"] == b["alarms"]
+    assert np.isfinite([v for v in a["signals"]["fb_error"][1:] if v is not None]).all()
+    if tracker == "manifold":
+        ess = [v for v in a["signals"]["ess"][1:]]
+        assert all(v is not None and 0 < v <= 1 for v in ess)
+    else:
+        assert all(v is None for v in a["signals"]["ess"])
+
+
+# --------------------------------------------------------------------------- #
+# the command
+# --------------------------------------------------------------------------- #
+def _fake_bench(tmp_path, rng) -> None:
+    for r in _labelled_runs(rng, n_runs=3):
+        d = tmp_path / "bench" / r.sequence
+        d.mkdir(parents=True, exist_ok=True)
+        doc = {"format": 1, "sequence": r.sequence, "tracker": r.tracker, "seed": r.seed,
+               "diagnosis": {"signals": {k: [None if not np.isfinite(v) else float(v) for v in r.rows[:, i]]
+                                         for i, k in enumerate(SIGNALS)},
+                             "frame_iou": r.iou.tolist()}}
+        (d / f"{r.tracker}_s{r.seed}.json").write_text(json.dumps(doc))
+
+
+def test_calibrate_command_writes_a_model_the_detector_option_reads(tmp_path, rng):
+    from covviz.cli import main
+
+    _fake_bench(tmp_path, rng)
+    assert len(load_runs(tmp_path / "bench")) == 3
+    out = tmp_path / "det.json"
+    assert main(["calibrate", str(tmp_path / "bench"), "--out", str(out)]) == 0
+    m = DriftModel.load(out)
+    assert m.family == "manifold" and m.fit["runs"] == 3
+    assert main(["calibrate", str(tmp_path / "bench"), "--all-families", str(tmp_path / "fam")]) == 0
+    assert sorted(p.name for p in (tmp_path / "fam").iterdir()) == ["generic.json", "manifold.json"]
+    assert main(["calibrate", str(tmp_path / "nothing"), "--out", str(out)]) == 2
+    assert main(["track", "--max-frames", "5", "--no-save", "--no-progress", "--out", str(tmp_path / "runs"),
+                 "--detector", str(tmp_path / "missing.json")]) == 2
