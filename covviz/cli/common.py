@@ -84,6 +84,18 @@ def add_config_arg(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_frames_by_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--frames-by",
+        choices=("number", "order"),
+        default="number",
+        help="how an OTB/VOT folder's frames get their ground-truth rows: 'number' (default): img/0015.jpg is "
+        "frame 15 and gets row 15, and a gap, a duplicate or unnumbered file, a blank line or more rows than "
+        "frames is refused; 'order': the k-th image file in name order gets row k, whatever its number, and "
+        "extra rows are dropped",
+    )
+
+
 # Rerun options in the style of rr.script_add_args, as our own flags: several sinks at once
 # (a file and a viewer), and no --headless/--stdout, which do not fit a tracking run.
 

@@ -11,6 +11,7 @@ from covviz.cli.common import (
     _check_recording_path,
     _check_viewer,
     _q,
+    add_frames_by_arg,
     add_recording_args,
     nonneg_int,
     parse_box,
@@ -70,6 +71,7 @@ def add_mds_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--png-dir", type=Path, default=Path("recordings"), help="folder for the PNGs (default recordings/)")
     p.add_argument("--no-png", action="store_true", help="write no PNGs")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_frames_by_arg(p)
     add_recording_args(p, mds_options=False)
     p.set_defaults(func=cmd_mds)
     return p
@@ -83,9 +85,10 @@ def cmd_mds(args) -> int:
 def _mds(args) -> int:
     from covviz.viz.mds_figures import DEFAULT_FRAMES, MDSFiguresConfig, random_walk_data, separation_data
 
-    seq = open_sequence(args.sequence, box=args.box)
+    seq = open_sequence(args.sequence, box=args.box, frames_by=args.frames_by)
     if len(seq) < 2:
         raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
+    seq.check_frames(len(seq))
     cfg = MDSFiguresConfig(
         frames=tuple(DEFAULT_FRAMES if args.frames is None else args.frames),
         max_target=max(2, args.max_target),

@@ -17,6 +17,7 @@ from covviz.cli.common import (
     _q,
     _remove_empty,
     add_config_arg,
+    add_frames_by_arg,
     add_recording_args,
     default_recording_path,
     log,
@@ -77,6 +78,7 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
     add_config_arg(p)
     p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0): same seed, same boxes")
     p.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
+    add_frames_by_arg(p)
     p.add_argument("--out", type=Path, default=Path("runs"), help="results folder (default: runs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_recording_args(p)
@@ -153,21 +155,12 @@ def _warm_kernels(trackers) -> None:
         took = kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
         log.debug("kernels ready in %.1f s", took)
 
-def _check_frames(seq, n_frames: int) -> None:
-    """Fail before tracking if a numbered frame is missing among the frames to track.
-
-    Frames are matched to ground truth by their number (img/0015.jpg is row 15);
-    tracking across a gap would score every later frame against the wrong row,
-    and the OTB results format has no way to skip a frame.
-    """
-    missing = [i for i in getattr(seq, "missing", ()) if i < n_frames]
-    if missing:
-        first = seq.files[missing[0]]
-        more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
-        raise UsageError(
-            f"{first}: frame missing{more} (frames are matched to the ground truth by number); restore it, "
-            f"or track the {missing[0]} frames before it with --max-frames {missing[0]}"
-        )
+def _report_unscored(seq, n_frames: int) -> None:
+    """Say which frames are tracked without ground truth because the ground-truth file ends before them."""
+    rows = getattr(seq, "n_gt_lines", None)
+    if rows is not None and rows < n_frames:
+        log.info("%s: the ground truth has %d rows for %d frames: frames %d-%d are tracked but not scored",
+                 seq.name, rows, n_frames, rows + 1, n_frames)
 
 def _recorded(args) -> bool:
     return not args.no_save or bool(args.spawn or args.connect or args.serve_web)
@@ -202,11 +195,12 @@ def _track(args) -> int:
     from covviz.diagnosis.drift import Diagnoser
     from covviz.model.image import check_init_box
 
-    seq = open_sequence(args.sequence, box=args.box)
+    seq = open_sequence(args.sequence, box=args.box, frames_by=args.frames_by)
     if len(seq) < 2:
         raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
     n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
-    _check_frames(seq, n_frames)
+    seq.check_frames(n_frames)
+    _report_unscored(seq, n_frames)
     first = seq.frame(0)  # fail early on an unreadable first frame or a bad box
     check_init_box(seq.init_box, first.image.shape)
     _check_memory(args, first.image.shape)

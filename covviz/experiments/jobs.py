@@ -201,6 +201,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
     from covviz.threads import limit_threads
 
     seq = open_sequence(job.path)
+    seq.check_frames(len(seq) if job.max_frames is None else min(len(seq), job.max_frames))
     tracker = job.make_tracker()
     failures = _FailureCounter()
     diagnoser = Diagnoser()

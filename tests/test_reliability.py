@@ -1,0 +1,271 @@
+"""Nothing silently wrong (issue 19): frames matched to their ground truth, one writer per output, one-line errors.
+
+Each test here failed before the fix it names (the issue's defect number in its
+docstring). Frames are tiny PNG/JPEG folders in ``tmp_path``; the dev sequences
+are read from ``../shared/sequences`` when present (skipped otherwise).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from covviz import cli
+from covviz.data.sequences import SequenceError, VOTSequence, open_sequence, read_boxes
+
+SHARED_SEQUENCES = Path(__file__).resolve().parents[2] / "shared" / "sequences"
+H, W = 24, 32
+
+
+def run_main(argv: list[str]) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+def one_error_line(err: str, command: str = "track") -> str:
+    lines = [line for line in err.splitlines() if line.strip() and not line.startswith("INFO:")]
+    assert len(lines) == 1, err
+    assert lines[0].startswith(f"covviz {command}: error:"), err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def frame_image(k: int) -> np.ndarray:
+    """A BGR frame whose colour encodes ``k``."""
+    img = np.empty((H, W, 3), np.uint8)
+    img[:] = (k % 256, (3 * k + 50) % 256, 255 - k % 256)
+    return img
+
+
+def gt_line(k: int) -> str:
+    """Ground-truth row of frame number ``k`` (1-based x encodes k)."""
+    return f"{k},3,8,6"
+
+
+def make_seq(root: Path, names: list[str], gt_lines: list[str], name: str = "Seq") -> Path:
+    folder = root / name
+    (folder / "img").mkdir(parents=True)
+    for k, n in enumerate(names):
+        assert cv2.imwrite(str(folder / "img" / n), frame_image(k))
+    (folder / "groundtruth_rect.txt").write_text("".join(line + "\n" for line in gt_lines))
+    return folder
+
+
+def numbered(n: int, ext: str = ".png") -> list[str]:
+    return [f"{k:04d}{ext}" for k in range(1, n + 1)]
+
+
+def track(seq_dir: Path, tmp_path: Path, *extra: str) -> tuple[int, str, str]:
+    return run_main(["track", str(seq_dir), "--trackers", "identity", "--no-progress", "--no-save",
+                     "--out", str(tmp_path / "runs"), *extra])
+
+
+# --------------------------------------------------------------------------- #
+# defects 1-4: frames and ground-truth rows matched by one rule, by number
+# --------------------------------------------------------------------------- #
+def test_a_blank_line_in_the_ground_truth_is_refused_naming_it(tmp_path):
+    """Defect 1: a blank line used to be skipped, moving every later row onto the frame before its own."""
+    lines = [gt_line(k) for k in range(1, 11)]
+    seq_dir = make_seq(tmp_path, numbered(10), lines[:3] + [""] + lines[3:9])
+    code, _, err = track(seq_dir, tmp_path)
+    assert code == 2
+    line = one_error_line(err)
+    assert "groundtruth_rect.txt:4: a blank line" in line and "NaN,NaN,NaN,NaN" in line
+    assert not (tmp_path / "runs").exists()
+
+
+def test_two_files_of_one_number_are_refused(tmp_path):
+    """Defect 2: img/0005.png beside img/0005.jpg made 31 frames and turned the numbering check off."""
+    seq_dir = make_seq(tmp_path, numbered(10), [gt_line(k) for k in range(1, 11)])
+    assert cv2.imwrite(str(seq_dir / "img" / "0005.jpg"), frame_image(99))
+    code, _, err = track(seq_dir, tmp_path)
+    assert code == 2
+    line = one_error_line(err)
+    assert "two files for frame number 5" in line and "0005.jpg" in line and "0005.png" in line
+    assert "--frames-by order" in line
+
+
+def test_an_unnumbered_image_among_the_frames_is_refused(tmp_path):
+    """Defect 3: 0010 deleted plus a cover.jpg: the gap check switched off and cover.jpg became the last frame."""
+    seq_dir = make_seq(tmp_path, numbered(12), [gt_line(k) for k in range(1, 13)])
+    (seq_dir / "img" / "0010.png").unlink()
+    assert cv2.imwrite(str(seq_dir / "img" / "cover.png"), frame_image(50))
+    code, _, err = track(seq_dir, tmp_path)
+    assert code == 2
+    line = one_error_line(err)
+    assert "cover.png: an image without a frame number" in line and "--frames-by order" in line
+    (seq_dir / "img" / "cover.png").unlink()
+    code, _, err = track(seq_dir, tmp_path)  # then the gap is named
+    assert code == 2 and "0010.png: frame missing" in one_error_line(err)
+
+
+def test_a_missing_first_frame_is_refused_not_shifted(tmp_path):
+    """Defect 4: with 0001 deleted, 0002.jpg was scored against row 1."""
+    seq_dir = make_seq(tmp_path, numbered(10), [gt_line(k) for k in range(1, 11)])
+    (seq_dir / "img" / "0001.png").unlink()
+    with pytest.raises(SequenceError, match=r"0001.png: frame missing .*--frames-by order"):
+        open_sequence(seq_dir).check_frames(10)
+    code, _, err = track(seq_dir, tmp_path)
+    assert code == 2 and "0001.png: frame missing" in one_error_line(err)
+
+
+def test_more_rows_than_frames_is_refused_and_fewer_are_reported(tmp_path, caplog):
+    """Defect 4: 30 rows for 29 frames drew no word; fewer rows than frames is fine and said."""
+    caplog.set_level(logging.INFO, logger="covviz")
+    seq_dir = make_seq(tmp_path, numbered(6), [gt_line(k) for k in range(1, 8)])
+    code, _, err = track(seq_dir, tmp_path)
+    assert code == 2
+    assert "7 rows for 6 frames" in one_error_line(err)
+    short = make_seq(tmp_path, numbered(6), [gt_line(k) for k in range(1, 5)], name="Short")
+    code, _out, err = track(short, tmp_path)
+    assert code == 0, err
+    assert "4 rows for 6 frames: frames 5-6 are tracked but not scored" in caplog.text
+
+
+def test_frames_by_order_takes_the_files_in_name_order(tmp_path):
+    """``--frames-by order``: the k-th file in natural name order gets row k, extra rows are dropped."""
+    names = ["f1.png", "f2.png", "f10.png", "f11.png", "cover.png"]
+    seq_dir = make_seq(tmp_path, names, [gt_line(k) for k in range(1, 8)])
+    with pytest.raises(SequenceError):
+        open_sequence(seq_dir)
+    seq = open_sequence(seq_dir, frames_by="order")
+    assert [p.name for p in seq.files] == ["cover.png", "f1.png", "f2.png", "f10.png", "f11.png"]
+    np.testing.assert_array_equal(seq.groundtruth[:, 0], [0, 1, 2, 3, 4])
+    code, out, err = track(seq_dir, tmp_path, "--frames-by", "order")
+    assert code == 0, err
+    assert "5 frames" in out
+
+
+def test_macos_resource_files_are_not_frames(tmp_path):
+    """``._0001.jpg`` (macOS AppleDouble files on a shared drive) are ignored, not refused nor tracked."""
+    seq_dir = make_seq(tmp_path, numbered(5), [gt_line(k) for k in range(1, 6)])
+    for n in numbered(5):
+        (seq_dir / "img" / f"._{n}").write_bytes(b"\x00\x05\x16\x07AppleDouble")
+    seq = open_sequence(seq_dir)
+    assert [p.name for p in seq.files] == numbered(5) and seq.missing == []
+
+
+def test_a_byte_order_mark_is_accepted(tmp_path):
+    """Smaller one: a ground truth saved with a UTF-8 byte-order mark was refused as 'not numbers'."""
+    seq_dir = make_seq(tmp_path, numbered(3), [])
+    (seq_dir / "groundtruth_rect.txt").write_bytes("\ufeff1,3,8,6\n2,3,8,6\n3,3,8,6\n".encode())
+    seq = open_sequence(seq_dir)
+    np.testing.assert_array_equal(seq.groundtruth[:, 0], [0, 1, 2])
+
+
+def _numbering_case(rng: np.random.Generator, n: int):
+    """A numbered folder broken in one random way, and what the rule must say about it."""
+    kind = rng.choice(["missing", "duplicate", "unnumbered", "blank", "extra_rows", "short_rows", "clean"])
+    names = numbered(n)
+    lines = [gt_line(k) for k in range(1, n + 1)]
+    extra: list[str] = []
+    expect = None
+    if kind == "missing":
+        k = int(rng.integers(0, n))
+        # The last file missing leaves more rows than frames.
+        expect = f"{names[k]}: frame missing" if k < n - 1 else f"{n} rows for {n - 1} frames"
+        names = names[:k] + names[k + 1:]
+    elif kind == "duplicate":
+        k = int(rng.integers(1, n + 1))
+        extra = [f"{k:04d}.jpg"]
+        expect = f"two files for frame number {k}"
+    elif kind == "unnumbered":
+        extra = [str(rng.choice(["cover.png", "thumb.jpg", "poster.bmp"]))]
+        expect = f"{extra[0]}: an image without a frame number"
+    elif kind == "blank":
+        k = int(rng.integers(0, n - 1))
+        lines = lines[:k] + [str(rng.choice(["", "  ", "\t"]))] + lines[k:]
+        expect = f"groundtruth_rect.txt:{k + 1}: a blank line"
+    elif kind == "extra_rows":
+        lines = lines + [gt_line(k) for k in range(n + 1, n + 1 + int(rng.integers(1, 4)))]
+        expect = f"{len(lines)} rows for {n} frames"
+    elif kind == "short_rows":
+        lines = lines[: int(rng.integers(1, n))]
+    return str(kind), names, extra, lines, expect
+
+
+@pytest.mark.parametrize("case", range(24))
+def test_the_numbering_rule_on_generated_folders(tmp_path, case):
+    """Generated cases: every break is refused with its file or line; a clean or short folder keeps row k on frame k."""
+    rng = np.random.default_rng([19, case])
+    n = int(rng.integers(4, 12))
+    _kind, names, extra, lines, expect = _numbering_case(rng, n)
+    folder = make_seq(tmp_path, names, lines)
+    for e in extra:
+        assert cv2.imwrite(str(folder / "img" / e), frame_image(77))
+    if expect is not None:
+        with pytest.raises(SequenceError, match=expect.replace(".", r"\.")):
+            open_sequence(folder).check_frames(n)
+        return
+    seq = open_sequence(folder)
+    seq.check_frames(len(seq))
+    assert len(seq) == n and [p.name for p in seq.files] == numbered(n)
+    rows = len(lines)
+    # Frame k (0-based) gets row k, whose x (1-based) encodes its number k + 1.
+    np.testing.assert_array_equal(seq.groundtruth[:rows, 0], np.arange(rows))
+    assert np.all(np.isnan(seq.groundtruth[rows:]))
+    for k in (0, n - 1):
+        np.testing.assert_array_equal(seq.frame(k).image, cv2.cvtColor(frame_image(k), cv2.COLOR_BGR2RGB))
+
+
+def test_the_generated_folders_cover_every_kind_of_break():
+    kinds = {_numbering_case(np.random.default_rng([19, case]), 8)[0] for case in range(24)}
+    assert kinds == {"missing", "duplicate", "unnumbered", "blank", "extra_rows", "short_rows", "clean"}
+
+
+def test_vot_frames_follow_the_same_rule(tmp_path):
+    folder = tmp_path / "vot"
+    folder.mkdir()
+    for k, n in enumerate([f"{k:08d}.jpg" for k in (1, 2, 4)]):
+        assert cv2.imwrite(str(folder / n), frame_image(k))
+    (folder / "groundtruth.txt").write_text("1,1,5,5\n2,2,5,5\n3,3,5,5\n")
+    seq = VOTSequence(folder)
+    assert seq.missing == [2]
+    with pytest.raises(SequenceError, match="00000003.jpg: frame missing"):
+        seq.check_frames(3)
+
+
+@pytest.mark.skipif(not SHARED_SEQUENCES.is_dir(), reason="the dev sequences are not on this machine")
+def test_every_dev_sequence_loads_frame_k_with_row_k():
+    """All 14 dev sequences load as before: every image file a frame, in number order, row k from line k."""
+    folders = sorted(p for p in SHARED_SEQUENCES.iterdir() if p.is_dir())
+    assert len(folders) == 14
+    for folder in folders:
+        seq = open_sequence(folder)
+        files = sorted((folder / "img").glob("*.jpg"))
+        assert [p.name for p in seq.files] == [p.name for p in files], folder.name
+        assert seq.missing == []
+        seq.check_frames(len(seq))
+        text = (folder / "groundtruth_rect.txt").read_text().splitlines()
+        rows = np.array([[float(v) for v in line.replace(",", " ").split()] for line in text if line.strip()])
+        assert len(seq) == len(files) and seq.n_gt_lines == len(rows) <= len(files), folder.name
+        rows[:, :2] -= 1
+        np.testing.assert_array_equal(seq.groundtruth[: len(rows)], rows, err_msg=folder.name)
+        assert np.all(np.isnan(seq.groundtruth[len(rows):]))
+    assert open_sequence(SHARED_SEQUENCES / "Football1").n_gt_lines == 74
+
+
+# --------------------------------------------------------------------------- #
+# defect 9: a ground truth that is not a file
+# --------------------------------------------------------------------------- #
+def test_a_ground_truth_folder_or_dangling_link_is_one_line(tmp_path):
+    seq_dir = make_seq(tmp_path, numbered(4), [gt_line(k) for k in range(1, 5)])
+    gt = seq_dir / "groundtruth_rect.txt"
+    gt.unlink()
+    gt.mkdir()
+    code, _, err = track(seq_dir, tmp_path)
+    assert code == 2 and "groundtruth_rect.txt: is a folder, not a box file" in one_error_line(err)
+    gt.rmdir()
+    gt.symlink_to(tmp_path / "elsewhere.txt")
+    code, _, err = track(seq_dir, tmp_path)
+    assert code == 2 and "elsewhere.txt, which does not exist" in one_error_line(err)
+    with pytest.raises(SequenceError):
+        read_boxes(gt)
