@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import io
 import logging
+import shutil
 from pathlib import Path
 
 import cv2
@@ -217,7 +218,10 @@ def test_the_numbering_rule_on_generated_folders(tmp_path, case):
 
 
 def test_the_generated_folders_cover_every_kind_of_break():
-    kinds = {_numbering_case(np.random.default_rng([19, case]), 8)[0] for case in range(24)}
+    kinds = set()
+    for case in range(24):  # as the test above draws them
+        rng = np.random.default_rng([19, case])
+        kinds.add(_numbering_case(rng, int(rng.integers(4, 12)))[0])
     assert kinds == {"missing", "duplicate", "unnumbered", "blank", "extra_rows", "short_rows", "clean"}
 
 
@@ -269,3 +273,76 @@ def test_a_ground_truth_folder_or_dangling_link_is_one_line(tmp_path):
     assert code == 2 and "elsewhere.txt, which does not exist" in one_error_line(err)
     with pytest.raises(SequenceError):
         read_boxes(gt)
+
+
+# --------------------------------------------------------------------------- #
+# defect 7: one writer per output
+# --------------------------------------------------------------------------- #
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_a_second_run_on_the_same_outputs_is_refused_before_it_writes(tmp_path):
+    """Defect 7: two tracks with one --save and --out both exited 0, with a broken recording and mixed results."""
+    from covviz.experiments.results import result_paths
+    from covviz.locks import hold_outputs, lock_path
+
+    seq_dir = make_seq(tmp_path, numbered(6), [gt_line(k) for k in range(1, 7)])
+    out, rrd = tmp_path / "runs", tmp_path / "same.rrd"
+    rrd.write_bytes(b"the other run's recording")
+    stem = result_paths(out, "Seq", "identity", 0)[1].with_suffix("")
+    stem.parent.mkdir(parents=True)
+    with hold_outputs([(rrd, "choose another --save")]):  # as a run in another process holds it
+        code, _, err = run_main(["track", str(seq_dir), "--trackers", "identity", "--no-progress",
+                                 "--save", str(rrd), "--out", str(out)])
+    assert code == 2
+    line = one_error_line(err)
+    assert f"is writing {rrd}" in line and "another --save" in line and "pid " in line
+    assert rrd.read_bytes() == b"the other run's recording"  # never opened
+    assert not list(stem.parent.glob("*.json"))
+    with hold_outputs([(stem, "choose another --out")]):
+        code, _, err = track(seq_dir, tmp_path)
+    assert code == 2 and f"is writing {stem}" in one_error_line(err)
+    code, _, err = track(seq_dir, tmp_path)  # both released: the run goes, and leaves no lock behind
+    assert code == 0, err
+    assert not lock_path(stem).exists() and not lock_path(rrd).exists()
+
+
+def test_two_processes_on_one_recording(tmp_path):
+    """Defect 7, as it happened: a run in another process holds the recording, the second is refused."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from covviz.locks import lock_path
+
+    rrd = tmp_path / "same.rrd"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
+    first = subprocess.Popen(
+        [sys.executable, "-m", "covviz.cli", "track", "--trackers", "identity", "--no-progress", "--save", str(rrd),
+         "--out", str(tmp_path / "a")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+        cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 60
+        while not lock_path(rrd).exists() and first.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        os.kill(first.pid, signal.SIGSTOP)  # holding its locks, while the second one starts
+        try:
+            assert first.poll() is None, first.communicate()
+            code, _, err = run_main(["track", "--trackers", "identity", "--no-progress", "--save", str(rrd),
+                                     "--out", str(tmp_path / "b")])
+        finally:
+            os.kill(first.pid, signal.SIGCONT)
+        _, err1 = first.communicate(timeout=120)
+    finally:
+        if first.poll() is None:
+            first.kill()
+    assert first.returncode == 0, err1
+    assert code == 2 and f"another covviz run (pid {first.pid}" in one_error_line(err)
+    assert not (tmp_path / "b" / "synthetic").exists()
+    rerun = shutil.which("rerun")
+    if rerun is not None:  # the first run's recording is whole
+        verify = subprocess.run([rerun, "rrd", "verify", str(rrd)], capture_output=True, timeout=120, check=False)
+        assert verify.returncode == 0, verify.stderr
+    assert not lock_path(rrd).exists()

@@ -101,11 +101,14 @@ def _print_diagnosis(found: dict | None) -> None:
         print("  frames off track: " + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items()))
 
 def _recording_observers(
-    args, seq, n_frames: int, diagnoser, created: list[Path] | None = None
+    args, seq, n_frames: int, diagnoser, created: list[Path] | None = None, locks=None
 ) -> tuple[list, Path | None]:
     """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file.
 
     Without a recording, the drift diagnosis runs on its own background thread.
+    ``locks`` (an ExitStack) holds the lock of every output of the run
+    (:mod:`covviz.locks`), taken after the checks and before the recording file
+    is opened, so a second run on the same outputs is refused before it writes.
     """
     save = None if args.no_save else (args.save or default_recording_path(seq.name, args.trackers, args.seed))
     if args.no_save and args.save is not None:
@@ -113,11 +116,13 @@ def _recording_observers(
     live = bool(args.spawn or args.connect or args.serve_web)
     from covviz.runner import BackgroundObserver
 
-    if save is None and not live:
-        return [BackgroundObserver(diagnoser)], None
     if save is not None:
         _check_recording_path(save, n_frames, len(args.trackers), created)
     _check_viewer(args)
+    if locks is not None:
+        locks.enter_context(_hold_outputs(args, seq, save, created))
+    if save is None and not live:
+        return [BackgroundObserver(diagnoser)], None
     from covviz.viz.logger import LoggerConfig, RerunLogger
     from covviz.viz.sinks import BATCH_SECONDS, BATCH_SECONDS_LIVE, attach_sinks, new_recording
 
@@ -136,6 +141,21 @@ def _recording_observers(
     }
     # The recorder logs on its own thread, overlapping the tracker (runner.BackgroundObserver).
     return [BackgroundObserver(RerunLogger(stream, config, run_info=info, diagnoser=diagnoser))], save
+
+def _hold_outputs(args, seq, save: Path | None, created: list[Path] | None):
+    """The locks of the run's outputs: each tracker's results, and the recording (:func:`covviz.locks.hold_outputs`)."""
+    from covviz.cli.common import _mkdirs
+    from covviz.experiments.results import result_paths
+    from covviz.locks import hold_outputs
+
+    outputs = []
+    for name in args.trackers:
+        _, js = result_paths(args.out, seq.name, name, args.seed)
+        _mkdirs(js.parent, created)
+        outputs.append((js.with_suffix(""), "choose another --out"))
+    if save is not None:
+        outputs.append((save, "choose another --save"))
+    return hold_outputs(outputs)
 
 def cmd_track(args) -> int:
     # One native thread for BLAS and OpenCV while tracking: more only contend with the
@@ -205,21 +225,27 @@ def _track(args) -> int:
     check_init_box(seq.init_box, first.image.shape)
     _check_memory(args, first.image.shape)
     created: list[Path] = []  # folders made by the checks: removed again if nothing is written
+    locks = contextlib.ExitStack()  # one writer per output: held until the last file is written
     try:
         _check_out_dir(args.out, created)
         trackers = _make_trackers(args.trackers, args.seed, args.particles, getattr(args, "config", None))
         diagnoser = Diagnoser()
-        # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
-        recorders, rrd = _recording_observers(args, seq, n_frames, diagnoser, created)
+        # Last of the checks (an unwritable file, a viewer that is not there, an output another run
+        # is writing), then the file is opened.
+        recorders, rrd = _recording_observers(args, seq, n_frames, diagnoser, created, locks)
     except BaseException:
+        locks.close()
         _remove_empty(created)
         raise
     _warm_kernels(trackers)
-    with contextlib.ExitStack() as stack:  # the trackers' threads end with the run
-        for tr in trackers:
-            if hasattr(tr, "close"):
-                stack.callback(tr.close)
-        return _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created)
+    try:
+        with locks, contextlib.ExitStack() as stack:  # the trackers' threads end with the run
+            for tr in trackers:
+                if hasattr(tr, "close"):
+                    stack.callback(tr.close)
+            return _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created)
+    finally:
+        _remove_empty(created)  # those the lock files alone kept (a run stopped before its first write)
 
 def _run_tracking(args, seq, trackers, diagnoser, recorders, rrd, created) -> int:
     from covviz.experiments.results import ResultWriter
