@@ -4,7 +4,7 @@ Two ``covviz track`` runs with the same ``--save`` (or the same ``--out``,
 sequence, tracker and seed) would interleave their writes: a recording that no
 reader accepts, results that hold the other run's frames. :func:`hold_outputs`
 takes an exclusive ``flock`` on a hidden lock file beside each output
-(``.NAME.covviz-lock``) for the whole run, and refuses the second run before it
+(``.covviz-lock-HASH``, a hash of the output's name) for the whole run, and refuses the second run before it
 writes anything, with a sentence naming the output and the run that holds it.
 
 The lock goes with the process: a killed run leaves at most the empty lock
@@ -29,9 +29,11 @@ class OutputBusy(InputError):
 
 
 def lock_path(output: Path) -> Path:
-    """The lock file of ``output``: ``DIR/.NAME.covviz-lock``."""
+    """The lock file of ``output``: ``DIR/.covviz-lock-HASH``, a short name whatever the length of ``output``'s."""
+    import hashlib
+
     output = Path(output)
-    return output.parent / f".{output.name}.covviz-lock"
+    return output.parent / f".covviz-lock-{hashlib.sha1(os.fsencode(output.name)).hexdigest()[:16]}"
 
 
 def _take(output: Path, hint: str):

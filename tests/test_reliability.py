@@ -346,3 +346,75 @@ def test_two_processes_on_one_recording(tmp_path):
         verify = subprocess.run([rerun, "rrd", "verify", str(rrd)], capture_output=True, timeout=120, check=False)
         assert verify.returncode == 0, verify.stderr
     assert not lock_path(rrd).exists()
+
+
+# --------------------------------------------------------------------------- #
+# defects 8, 10, 11: one line, not a traceback
+# --------------------------------------------------------------------------- #
+def test_frames_of_one_pixel_are_one_line_and_leave_no_recording(tmp_path):
+    """Defect 8: 1x1 frames raised 'ValueError: gray must have shape …' and left an empty 139 KB recording."""
+    folder = tmp_path / "Tiny"
+    (folder / "img").mkdir(parents=True)
+    for k in range(1, 6):
+        assert cv2.imwrite(str(folder / "img" / f"{k:04d}.png"), np.full((1, 1, 3), 20 * k, np.uint8))
+    (folder / "groundtruth_rect.txt").write_text("1,1,1,1\n" * 5)
+    rrd = tmp_path / "tiny.rrd"
+    code, _, err = run_main(["track", str(folder), "--no-progress", "--save", str(rrd), "--out", str(tmp_path / "r")])
+    assert code == 2
+    assert "the frames are 1x1 pixels" in one_error_line(err)
+    assert not rrd.exists() and not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("length", [251, 300])
+def test_a_recording_name_too_long_is_one_line(tmp_path, length):
+    """Defect 10: --save with a 300-character file name raised 'OSError: File name too long'."""
+    rrd = tmp_path / ("a" * (length - 4) + ".rrd")
+    code, _, err = run_main(["track", "--trackers", "identity", "--no-progress", "--save", str(rrd),
+                             "--out", str(tmp_path / "r")])
+    assert code == 2
+    assert f"the file name is {length} bytes" in one_error_line(err)
+
+
+def test_a_sequence_path_too_long_is_one_line_and_a_long_name_gets_a_recording(tmp_path, monkeypatch):
+    """Defect 10: a 300-character sequence path raised 'OSError'; a 250-character folder name made a
+    default recording name too long to create."""
+    code, _, err = run_main(["track", str(tmp_path / ("x" * 300)), "--no-progress", "--no-save"])
+    assert code == 2 and "File name too long" in one_error_line(err)
+    long = make_seq(tmp_path, numbered(3), [gt_line(k) for k in range(1, 4)], name="L" * 250)
+    monkeypatch.chdir(tmp_path)
+    code, _out, err = run_main(["track", str(long), "--trackers", "identity", "--no-progress", "--out", "r"])
+    assert code == 0, err
+    (rrd,) = (tmp_path / "recordings").glob("*.rrd")
+    assert len(rrd.name) <= 250 and rrd.name.endswith("-identity-s0.rrd") and rrd.stat().st_size > 0
+
+
+def test_the_viewer_beside_python_is_found_without_path(monkeypatch):
+    """Defect 11: --spawn from a venv's covviz, the venv not activated, found no viewer though it sat beside covviz."""
+    import sys
+
+    from covviz.viz import snapshot
+
+    beside = Path(sys.executable).parent / "rerun"
+    if not beside.is_file():
+        pytest.skip("no rerun beside this Python")
+    monkeypatch.setenv("PATH", "/nonexistent")
+    monkeypatch.delenv("RERUN_CLI_PATH", raising=False)
+    monkeypatch.setitem(sys.modules, "rerun_cli", None)  # as if its native binary were not there
+    assert snapshot.find_viewer() == str(beside)
+
+
+def test_spawn_starts_the_viewer_it_found(monkeypatch):
+    """Defect 11: attach_sinks handed the search to rerun, which looks in PATH only."""
+    import rerun as rr
+
+    from covviz.viz import sinks, snapshot
+
+    calls = []
+    monkeypatch.setattr(rr, "spawn", lambda **kw: calls.append(kw))
+    monkeypatch.setattr(snapshot, "find_viewer", lambda: "/opt/venv/bin/rerun")
+    stream = sinks.new_recording()
+    sinks.attach_sinks(stream, spawn=True, port=9911)
+    assert calls and calls[0]["executable_path"] == "/opt/venv/bin/rerun" and calls[0]["connect"] is False
+    monkeypatch.setattr(snapshot, "find_viewer", lambda: None)
+    code, _, err = run_main(["track", "--trackers", "identity", "--no-progress", "--no-save", "--spawn"])
+    assert code == 2 and "--spawn: no Rerun viewer found" in one_error_line(err)

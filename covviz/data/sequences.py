@@ -490,6 +490,29 @@ def open_sequence(source: str | Path | None = None, box=None, frames_by: str = "
     SequenceError
         With a one-line message saying what is wrong.
     """
+    try:
+        seq = _open(source, box, frames_by)
+    except OSError as exc:  # a name too long for the file system, a folder we may not read …
+        raise SequenceError(f"cannot open {_short(source)}: {exc.strerror or exc}") from None
+    if isinstance(seq, VideoSequence):
+        return seq
+    if box is not None:
+        b = np.asarray(box, dtype=np.float64).reshape(-1)
+        if b.shape != (4,):
+            raise SequenceError(f"--box must be 4 numbers x,y,w,h; got {box!r}")
+        seq.groundtruth = seq.groundtruth.copy()
+        seq.groundtruth[0] = b
+    return seq
+
+
+def _short(path, keep: int = 80) -> str:
+    """A path for a one-line message: a very long one is cut in the middle."""
+    s = str(path)
+    return s if len(s) <= keep else f"{s[: keep // 2]}…{s[-keep // 2:]} ({len(s)} characters)"
+
+
+def _open(source, box, frames_by: str) -> Sequence:
+    """:func:`open_sequence` before its ``box`` is applied to a folder's first row."""
     if source is None or str(source) == "synthetic":
         seq: Sequence = SyntheticSequence()
     elif str(source).startswith("synthetic:"):
@@ -526,10 +549,4 @@ def open_sequence(source: str | Path | None = None, box=None, frames_by: str = "
             return VideoSequence(p, box)
         else:
             raise SequenceError(f"{s}: no such file or folder")
-    if box is not None:
-        b = np.asarray(box, dtype=np.float64).reshape(-1)
-        if b.shape != (4,):
-            raise SequenceError(f"--box must be 4 numbers x,y,w,h; got {box!r}")
-        seq.groundtruth = seq.groundtruth.copy()
-        seq.groundtruth[0] = b
     return seq
