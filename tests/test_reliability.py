@@ -418,3 +418,60 @@ def test_spawn_starts_the_viewer_it_found(monkeypatch):
     monkeypatch.setattr(snapshot, "find_viewer", lambda: None)
     code, _, err = run_main(["track", "--trackers", "identity", "--no-progress", "--no-save", "--spawn"])
     assert code == 2 and "--spawn: no Rerun viewer found" in one_error_line(err)
+
+
+# --------------------------------------------------------------------------- #
+# defect 12: snapshot on a full disk, and a busy viewer
+# --------------------------------------------------------------------------- #
+class _FakeViewer:
+    """A viewer client whose save_screenshot fails as rerun 0.41's does."""
+
+    def __init__(self, errors):
+        self.errors = list(errors)
+        self.calls = 0
+
+    def save_screenshot(self, path):
+        self.calls += 1
+        if self.errors:
+            raise self.errors.pop(0)
+        Path(path).write_bytes(b"png")
+
+
+def test_a_full_disk_under_the_screenshot_is_one_line(tmp_path):
+    """Defect 12: 'ConnectionError … No space left on device' escaped as a traceback."""
+    from covviz.viz.snapshot import SnapshotError, save_screenshot
+
+    viewer = _FakeViewer([ConnectionError("status: Internal, message: \"No space left on device (os error 28)\"")])
+    with pytest.raises(SnapshotError, match=r"no space left on the device while writing .*shot.png .*MB free"):
+        save_screenshot(viewer, tmp_path / "shot.png")
+
+
+def test_a_busy_viewer_is_retried_then_said(tmp_path, monkeypatch):
+    """Defect 12: under load a 'TimeoutError: Deadline expired' traceback came from the viewer."""
+    from covviz.viz import snapshot
+
+    monkeypatch.setattr(snapshot.time, "sleep", lambda s: None)
+    viewer = _FakeViewer([TimeoutError("Deadline expired before operation could complete")])
+    snapshot.save_screenshot(viewer, tmp_path / "shot.png")  # the second try succeeds
+    assert viewer.calls == 2 and (tmp_path / "shot.png").read_bytes() == b"png"
+    viewer = _FakeViewer([TimeoutError("Deadline expired")] * snapshot.VIEWER_CALL_TRIES)
+    with pytest.raises(snapshot.SnapshotError, match="did not take the screenshot in time, 3 tries .*--timeout"):
+        snapshot.save_screenshot(viewer, tmp_path / "other.png")
+
+
+def test_snapshot_refuses_a_disk_without_room_before_the_viewer_starts(tmp_path, monkeypatch):
+    import shutil as sh
+
+    from covviz.viz import snapshot
+
+    rrd = tmp_path / "r.rrd"
+    rrd.write_bytes(b"x")
+    monkeypatch.setattr(snapshot, "vulkan_available", lambda: True)
+    monkeypatch.setattr(snapshot, "find_viewer", lambda: "/bin/false")
+    monkeypatch.setattr(snapshot.shutil, "disk_usage", lambda p: sh._ntuple_diskusage(10**9, 10**9, 10**5))
+    started = []
+    monkeypatch.setattr(snapshot.subprocess, "Popen", lambda *a, **k: started.append(a))
+    code, _, err = run_main(["snapshot", str(rrd), "--out", str(tmp_path / "s.png")])
+    assert code == 2
+    assert "not enough free space for the screenshot" in one_error_line(err, "snapshot")
+    assert not started

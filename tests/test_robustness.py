@@ -672,3 +672,4 @@ def test_report_on_a_corrupt_manifest_names_the_command_that_has_force(tmp_path)
     assert code == 2
     line = one_error_line(err, "report")
     assert "corrupt bench manifest" in line and "'covviz bench … --force'" in line
+    assert "rebuilds the manifest from the results" in line
