@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import logging
 import shutil
 from pathlib import Path
@@ -475,3 +476,23 @@ def test_snapshot_refuses_a_disk_without_room_before_the_viewer_starts(tmp_path,
     assert code == 2
     assert "not enough free space for the screenshot" in one_error_line(err, "snapshot")
     assert not started
+
+
+# --------------------------------------------------------------------------- #
+# defect 15: bench from the folder that holds the clone
+# --------------------------------------------------------------------------- #
+def test_bench_from_the_folder_holding_a_clone_runs_this_covviz(tmp_path, monkeypatch, capsys):
+    """Defect 15: 'cd ..; covviz bench' after 'git clone … covviz': every job failed with
+    "ImportError: cannot import name '__version__' from 'covviz' (unknown location)"."""
+    import covviz
+    from covviz.experiments.bench import bench
+
+    make_seq(tmp_path / "seqs", numbered(4), [gt_line(k) for k in range(1, 5)])
+    (tmp_path / "covviz" / "tests").mkdir(parents=True)  # the clone: a folder called covviz, no __init__.py
+    (tmp_path / "covviz" / "README.md").write_text("# covviz\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("PYTHONPATH", raising=False)  # as a user has it
+    summary = bench(tmp_path / "seqs", ["identity"], tmp_path / "out", seeds=1, jobs=1, progress=False, report=False)
+    assert summary["failed"] == [] and summary["run"] == 1
+    doc = json.loads((tmp_path / "out" / "Seq" / "identity.json").read_text())
+    assert doc["versions"]["covviz"] == covviz.__version__
