@@ -496,3 +496,64 @@ def test_bench_from_the_folder_holding_a_clone_runs_this_covviz(tmp_path, monkey
     assert summary["failed"] == [] and summary["run"] == 1
     doc = json.loads((tmp_path / "out" / "Seq" / "identity.json").read_text())
     assert doc["versions"]["covviz"] == covviz.__version__
+
+
+# --------------------------------------------------------------------------- #
+# defect 16: error exits leave nothing behind; report reads only its own files
+# --------------------------------------------------------------------------- #
+@pytest.mark.parametrize("case", ["trials0", "storage"])
+def test_tune_that_fails_at_once_leaves_nothing(tmp_path, monkeypatch, case):
+    """Defect 16: --trials 0 left a 114 KB study.db, a bad --storage left empty folders."""
+    pytest.importorskip("optuna")
+    make_seq(tmp_path / "seqs", numbered(4), [gt_line(k) for k in range(1, 5)])
+    monkeypatch.chdir(tmp_path)
+    extra = ["--trials", "0"] if case == "trials0" else ["--trials", "1", "--storage", "bogus://nowhere"]
+    code, _, err = run_main(["tune", str(tmp_path / "seqs"), "--out", "made/tune", "--no-progress", *extra])
+    assert code == 2
+    line = one_error_line(err, "tune")
+    assert ("--trials 0 reports on an existing study" in line) if case == "trials0" else ("bogus://nowhere" in line)
+    assert not (tmp_path / "made").exists()
+
+
+def test_a_storage_error_is_one_line():
+    from covviz.experiments.tune import TuneError, _storage
+
+    optuna = pytest.importorskip("optuna")
+    with pytest.raises(TuneError) as info:
+        _storage(optuna, "sqlite:////nonexistent/folder/x.db")
+    assert "\n" not in str(info.value) and "unable to open database file" in str(info.value)
+
+
+def test_mds_on_a_truncated_frame_leaves_no_folder(tmp_path, monkeypatch):
+    """Defect 16: 'covviz mds' on a truncated JPEG left an empty recordings/ folder."""
+    folder = tmp_path / "Seq"
+    (folder / "img").mkdir(parents=True)
+    rng = np.random.default_rng(3)
+    for k in range(1, 9):
+        assert cv2.imwrite(str(folder / "img" / f"{k:04d}.jpg"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    (folder / "groundtruth_rect.txt").write_text("20,12,16,14\n" * 8)
+    jpg = folder / "img" / "0003.jpg"
+    jpg.write_bytes(jpg.read_bytes()[:400])
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_main(["mds", str(folder), "--no-progress"])
+    assert code == 2 and "0003.jpg" in one_error_line(err, "mds")
+    assert not (tmp_path / "recordings").exists()
+
+
+def test_report_skips_json_that_covviz_did_not_write(tmp_path, caplog):
+    """Defect 16: 'covviz report /tmp' told the user to delete another tool's JSON."""
+    from covviz.experiments.report import load_runs
+    from covviz.experiments.results import ResultError
+
+    seq_dir = make_seq(tmp_path, numbered(4), [gt_line(k) for k in range(1, 5)])
+    assert track(seq_dir, tmp_path)[0] == 0
+    (tmp_path / "runs" / "other").mkdir()
+    (tmp_path / "runs" / "other" / "model.json").write_text('{"format": "someone-else/2"}')
+    (tmp_path / "runs" / "other" / "notes.json").write_text("not json at all")
+    _, runs, _ = load_runs(tmp_path / "runs")
+    assert [(r.sequence, r.tracker) for r in runs] == [("Seq", "identity")]
+    assert "skipped 2 JSON file(s) that are not covviz results" in caplog.text
+    ours = tmp_path / "runs" / "Seq" / "identity_s0.json"
+    ours.write_text(ours.read_text()[:120])  # a covviz result cut short is still ours: named, not skipped
+    with pytest.raises(ResultError, match="identity_s0.json: corrupt results file"):
+        load_runs(tmp_path / "runs")

@@ -11,6 +11,7 @@ from covviz.cli.common import (
     _check_recording_path,
     _check_viewer,
     _q,
+    _remove_empty,
     add_frames_by_arg,
     add_recording_args,
     nonneg_int,
@@ -83,7 +84,7 @@ def cmd_mds(args) -> int:
         return _mds(args)
 
 def _mds(args) -> int:
-    from covviz.viz.mds_figures import DEFAULT_FRAMES, MDSFiguresConfig, random_walk_data, separation_data
+    from covviz.viz.mds_figures import DEFAULT_FRAMES, MDSFiguresConfig
 
     seq = open_sequence(args.sequence, box=args.box, frames_by=args.frames_by)
     if len(seq) < 2:
@@ -101,11 +102,20 @@ def _mds(args) -> int:
         raise UsageError("--save and --no-save contradict each other; give one")
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in seq.name) or "sequence"
     save = None if args.no_save else (args.save or Path("recordings") / f"{safe}-mds.rrd")
+    created: list[Path] = []  # folders the checks made: removed again if the command ends before writing
+    try:
+        return _mds_figures(args, seq, cfg, safe, save, created)
+    finally:
+        _remove_empty(created)
+
+def _mds_figures(args, seq, cfg, safe: str, save: Path | None, created: list[Path]) -> int:
+    from covviz.viz.mds_figures import random_walk_data, separation_data
+
     if save is not None:
-        _check_recording_path(save, 10, 1)
+        _check_recording_path(save, 10, 1, created)
     _check_viewer(args)
     if not args.no_png:
-        _check_out_dir(args.png_dir)
+        _check_out_dir(args.png_dir, created)
     progress = not args.no_progress
     # One observation model for both figures: the one the tracker of figure (b) builds at init.
     walk = random_walk_data(seq, cfg, progress=progress)
