@@ -557,3 +557,76 @@ def test_report_skips_json_that_covviz_did_not_write(tmp_path, caplog):
     ours.write_text(ours.read_text()[:120])  # a covviz result cut short is still ours: named, not skipped
     with pytest.raises(ResultError, match="identity_s0.json: corrupt results file"):
         load_runs(tmp_path / "runs")
+
+
+# --------------------------------------------------------------------------- #
+# defect 14 and a smaller one: a recording cut mid-message, another app's recording
+# --------------------------------------------------------------------------- #
+@pytest.fixture(scope="module")
+def small_recording(tmp_path_factory) -> Path:
+    """A covviz recording of 60 synthetic frames (identity tracker: it loses the target, so it has events)."""
+    d = tmp_path_factory.mktemp("rec")
+    rrd = d / "run.rrd"
+    code, _, err = run_main(["track", "--trackers", "identity", "--max-frames", "60", "--no-progress",
+                             "--save", str(rrd), "--out", str(d / "runs")])
+    assert code == 0, err
+    return rrd
+
+
+@pytest.mark.parametrize("share", [0.5, 0.8])
+def test_events_of_a_recording_cut_mid_message_are_read_up_to_the_cut(small_recording, tmp_path, share, caplog):
+    """Defect 14: 'covviz events' on a cut recording failed with 'payload exceeds file size'."""
+    from covviz.viz.readback import last_frame, read_events, readable_length
+
+    data = small_recording.read_bytes()
+    cut = tmp_path / "cut.rrd"
+    cut.write_bytes(data[: int(len(data) * share)])
+    assert readable_length(cut) < cut.stat().st_size  # it does end inside a message
+    events = read_events(cut)
+    whole = read_events(small_recording)
+    assert events == [e for e in whole if e["index"] < len(events)]  # a prefix of the whole recording's
+    assert "was cut short" in caplog.text and f"rerun rrd migrate {cut}" in caplog.text
+    assert 1 <= last_frame(cut) <= last_frame(small_recording)
+    code, out, err = run_main(["events", str(cut)])
+    assert code == 0 and "Traceback" not in err
+    assert len(out.splitlines()) == max(1, len(events))  # one line an event (or "no events")
+
+
+def test_the_readable_part_of_a_cut_recording_is_a_valid_recording(small_recording, tmp_path):
+    """Defect 14 (snapshot): the viewer opens the copy of the whole messages (it opened nothing of the cut file)."""
+    import subprocess
+
+    from covviz.viz.readback import readable_file
+
+    data = small_recording.read_bytes()
+    cut = tmp_path / "cut.rrd"
+    cut.write_bytes(data[: len(data) // 2])
+    with readable_file(cut) as (src, kept):
+        assert src != cut and kept == (src.stat().st_size, cut.stat().st_size)
+        assert cut.read_bytes().startswith(src.read_bytes())
+        rerun = shutil.which("rerun")
+        if rerun is not None:
+            ok = subprocess.run([rerun, "rrd", "verify", "--check-footers", "false", str(src)], capture_output=True,
+                                timeout=120, check=False)
+            assert ok.returncode == 0, ok.stderr
+    assert not src.exists()  # the copy goes with the block
+    with readable_file(small_recording) as (same, kept):
+        assert same == small_recording and kept is None
+
+
+def test_events_of_another_apps_recording_says_so(tmp_path):
+    """Smaller one: 'covviz events' on another app's .rrd said 'no events', exit 0."""
+    import rerun as rr
+
+    other = tmp_path / "other.rrd"
+    stream = rr.RecordingStream("someone-else")
+    stream.save(str(other))
+    stream.log("points", rr.Points2D([[0, 0]]))
+    stream.flush()
+    stream.disconnect()
+    code, _, err = run_main(["events", str(other)])
+    assert code == 2
+    assert "not a covviz recording (application someone-else)" in one_error_line(err, "events")
+    (tmp_path / "text.rrd").write_text("hello")
+    code, _, err = run_main(["events", str(tmp_path / "text.rrd")])
+    assert code == 2 and "not a Rerun recording" in one_error_line(err, "events")

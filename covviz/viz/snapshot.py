@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import errno
 import glob
+import logging
 import os
 import shutil
 import signal
@@ -25,6 +26,8 @@ import time
 from pathlib import Path
 
 from covviz.errors import InputError, free_space
+
+log = logging.getLogger("covviz")
 
 __all__ = [
     "SnapshotError",
@@ -157,7 +160,20 @@ def snapshot_frames(
     """Several screenshots of one recording, ``(png, frame)`` each, from a single viewer launch.
 
     See :func:`snapshot` for the arguments; every frame is checked before the first shot.
+    A recording cut mid-message (a full disk) is shown up to the cut, from a
+    temporary copy of its whole messages (the viewer opens nothing of it as it is).
     """
+    from covviz.viz.readback import cut_note, readable_file
+
+    if not Path(recording).is_file():
+        raise SnapshotError(f"{Path(recording).resolve()}: no such recording")
+    with readable_file(Path(recording)) as (src, cut):
+        if cut is not None:
+            log.warning("%s", cut_note(Path(recording), cut))
+        return _snapshot_frames(src, shots, size, timeline, timeout, settle)
+
+
+def _snapshot_frames(recording, shots, size, timeline, timeout, settle) -> list[Path]:
     recording = Path(recording).resolve()
     outs = [Path(o).resolve() for o, _ in shots]
     if not recording.is_file():
