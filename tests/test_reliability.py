@@ -630,3 +630,52 @@ def test_events_of_another_apps_recording_says_so(tmp_path):
     (tmp_path / "text.rrd").write_text("hello")
     code, _, err = run_main(["events", str(tmp_path / "text.rrd")])
     assert code == 2 and "not a Rerun recording" in one_error_line(err, "events")
+
+
+# --------------------------------------------------------------------------- #
+# the smaller ones
+# --------------------------------------------------------------------------- #
+def test_a_truncated_video_names_its_frame_from_1(tmp_path):
+    """Smaller one: the error for a truncated video gave a 0-based frame number."""
+    from covviz.data.sequences import VideoSequence
+
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        writer.write(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    writer.release()
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    seq = VideoSequence(path, (5, 5, 10, 10))
+    read = 0
+    with pytest.raises(SequenceError) as info:
+        for _ in seq:
+            read += 1
+    assert 0 < read < 30
+    assert f"cannot decode frame {read + 1} (frames count from 1" in str(info.value)
+    assert f"--max-frames {read}" in str(info.value)
+
+
+def test_track_dot_names_the_sequence_after_its_folder(tmp_path, monkeypatch):
+    """Smaller one: 'covviz track .' gave an empty sequence name and wrote results straight into --out."""
+    seq_dir = make_seq(tmp_path, numbered(4), [gt_line(k) for k in range(1, 5)], name="Here")
+    monkeypatch.chdir(seq_dir)
+    code, _, err = run_main(["track", ".", "--trackers", "identity", "--no-progress", "--no-save",
+                               "--out", str(tmp_path / "runs")])
+    assert code == 0, err
+    assert (tmp_path / "runs" / "Here" / "identity_s0.json").is_file()
+    assert not list((tmp_path / "runs").glob("*.json"))
+    monkeypatch.chdir(seq_dir / "img")
+    assert open_sequence("..").name == "Here"
+
+
+def test_max_frames_1_is_refused_in_one_line(tmp_path):
+    """Smaller one: '--max-frames 1' printed 'nan fps' and 'no ground truth' (only the given box was 'tracked')."""
+    code, out, err = run_main(["track", "--trackers", "identity", "--max-frames", "1", "--no-progress", "--no-save",
+                               "--out", str(tmp_path / "runs")])
+    assert code == 2 and "nan" not in out
+    assert "--max-frames 1 tracks nothing" in one_error_line(err)
+    code, out, err = run_main(["track", "--trackers", "identity", "--max-frames", "2", "--no-progress", "--no-save",
+                               "--out", str(tmp_path / "runs")])
+    assert code == 0 and "nan fps" not in out and "2 frames" in out

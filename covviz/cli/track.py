@@ -218,6 +218,8 @@ def _track(args) -> int:
     seq = open_sequence(args.sequence, box=args.box, frames_by=args.frames_by)
     if len(seq) < 2:
         raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
+    if args.max_frames == 1:
+        raise UsageError("--max-frames 1 tracks nothing: frame 1 is where the box is given; give at least 2")
     n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
     seq.check_frames(n_frames)
     _report_unscored(seq, n_frames)

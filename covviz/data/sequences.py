@@ -433,7 +433,9 @@ class VideoSequence(Sequence):
             self._cap.set(cv2.CAP_PROP_POS_FRAMES, i)
         ok, img = self._cap.read()
         if not ok:
-            raise SequenceError(f"{self._path}: cannot decode frame {i}")
+            before = f"; track the {i} frames before it with --max-frames {i}" if i >= 2 else ""
+            raise SequenceError(f"{self._path}: cannot decode frame {i + 1} (frames count from 1; the video may "
+                                f"be truncated){before}")
         self._next = i + 1
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
