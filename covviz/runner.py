@@ -279,10 +279,14 @@ def run_many(
                 if rec is None:
                     rec = FrameRecord(index=i, box=box, tracker=tr.name)
                 records.append(rec)
-            done = i + 1
-            for ob in observers:
-                if hasattr(ob, "on_frame"):
-                    ob.on_frame(frame, records)
+            # A frame counts as done once every observer has it: a stop signal while one waits
+            # (the recorder's queue full) is held until then, so the recording and the results
+            # end on the same frame.
+            with shielded():
+                done = i + 1
+                for ob in observers:
+                    if hasattr(ob, "on_frame"):
+                        ob.on_frame(frame, records)
             if periodic:
                 now = time.monotonic()
                 partial = None

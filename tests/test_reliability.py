@@ -679,3 +679,38 @@ def test_max_frames_1_is_refused_in_one_line(tmp_path):
     code, out, err = run_main(["track", "--trackers", "identity", "--max-frames", "2", "--no-progress", "--no-save",
                                "--out", str(tmp_path / "runs")])
     assert code == 0 and "nan fps" not in out and "2 frames" in out
+
+
+def test_after_ctrl_c_the_recording_holds_every_frame_of_the_results():
+    """Smaller one: after Ctrl-C the recording was one frame short of the results (the signal landed while the
+    tracking thread waited to hand the frame to the recorder's queue, after the frame was counted done)."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from covviz.data.synthetic import SyntheticConfig, SyntheticSequence
+    from covviz.runner import BackgroundObserver, ResultCollector, run_many
+    from covviz.signals import stop_signals
+    from covviz.trackers.base import IdentityTracker
+
+    class SlowRecorder:
+        def __init__(self):
+            self.frames = []
+
+        def on_frame(self, frame, records):
+            time.sleep(0.02)  # slower than the tracker: the queue is full, the tracking thread waits on it
+            self.frames.append(frame.index)
+
+    for attempt in range(5):
+        recorder, collector = SlowRecorder(), ResultCollector()
+        seq = SyntheticSequence(SyntheticConfig(n_frames=400))
+        timer = threading.Timer(0.3 + 0.037 * attempt, os.kill, (os.getpid(), signal.SIGINT))
+        with stop_signals():
+            timer.start()
+            with pytest.raises(KeyboardInterrupt):
+                run_many([IdentityTracker()], seq, [BackgroundObserver(recorder, maxsize=1), collector])
+        timer.join()
+        n = len(collector.results[0].boxes)
+        assert 0 < n < 400
+        assert recorder.frames == list(range(n)), (attempt, n, recorder.frames[-3:])
