@@ -714,3 +714,59 @@ def test_after_ctrl_c_the_recording_holds_every_frame_of_the_results():
         n = len(collector.results[0].boxes)
         assert 0 < n < 400
         assert recorder.frames == list(range(n)), (attempt, n, recorder.frames[-3:])
+
+
+def test_patch_size_has_an_upper_bound():
+    """Smaller one: patch_size had no upper bound (2000 took 180 s for 2 frames)."""
+    from covviz.trackers.manifold import ManifoldConfig
+
+    for bad in (129, 2000):
+        with pytest.raises(ValueError, match=r"patch_size must be in \[4, 128\]"):
+            ManifoldConfig(patch_size=bad)
+    assert ManifoldConfig(patch_size=128).patch_size == 128
+
+
+def test_a_huge_patch_size_in_a_config_file_is_one_line(tmp_path):
+    cfg = tmp_path / "c.json"
+    cfg.write_text('{"patch_size": 2000}')
+    code, _, err = run_main(["track", "--no-progress", "--no-save", "--config", str(cfg), "--out", str(tmp_path / "r")])
+    assert code == 2 and "patch_size must be in [4, 128]" in one_error_line(err)
+
+
+# --------------------------------------------------------------------------- #
+# defects 5-6: configuration recorded as if it ran (the architecture issue's declarative validation
+# fixes them; these flip green when it lands)
+# --------------------------------------------------------------------------- #
+LANDS_WITH_ARCHITECTURE = pytest.mark.xfail(strict=True, reason="config validation lands with the architecture issue")
+
+
+@LANDS_WITH_ARCHITECTURE
+@pytest.mark.parametrize("field, value", [("quadrants", "false"), ("jit", "no"), ("gain_normalize", 1),
+                                          ("antialias", "true")])
+def test_a_boolean_field_of_another_type_is_refused(field, value):
+    """Defect 5: {"quadrants": "false"} ran with quadrants on and wrote "false" into the results."""
+    from covviz.trackers.manifold import ManifoldConfig
+
+    with pytest.raises(ValueError, match=field):
+        ManifoldConfig.from_dict({field: value})
+
+
+@LANDS_WITH_ARCHITECTURE
+def test_a_config_file_with_a_string_boolean_does_not_run(tmp_path):
+    """Defect 5, from the command line: no such file runs (exit 2, one line, no results written)."""
+    cfg = tmp_path / "c.json"
+    cfg.write_text('{"quadrants": "false"}')
+    code, _, err = run_main(["track", "--no-progress", "--no-save", "--max-frames", "3", "--config", str(cfg),
+                             "--out", str(tmp_path / "r")])
+    assert code == 2 and "quadrants" in one_error_line(err)
+    assert not (tmp_path / "r").exists()
+
+
+@LANDS_WITH_ARCHITECTURE
+@pytest.mark.parametrize("value", [5, "fast", [1, 2]])
+def test_kinematics_of_another_type_is_refused_before_the_run(value):
+    """Defect 6: {"kinematics": 5} was accepted and failed mid-run with AttributeError."""
+    from covviz.trackers.manifold import ManifoldConfig
+
+    with pytest.raises(ValueError, match="kinematics"):
+        ManifoldConfig.from_dict({"kinematics": value})

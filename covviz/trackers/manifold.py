@@ -306,8 +306,8 @@ class ManifoldConfig:
                 raise ValueError("template_sigma_matrix must be a symmetric non-negative 9x9 matrix")
         if not isinstance(self.threads, (int, np.integer)) or self.threads < 1:
             raise ValueError(f"threads must be a positive integer, got {self.threads!r}")
-        if self.patch_size < 4:
-            raise ValueError(f"patch_size must be at least 4, got {self.patch_size}")
+        if not 4 <= self.patch_size <= 128:  # the cost grows as its square: 2000 took 90 s a frame
+            raise ValueError(f"patch_size must be in [4, 128] (the paper's is 32), got {self.patch_size}")
         if not self.eps > 0:
             raise ValueError(f"eps must be positive (it keeps descriptors SPD), got {self.eps}")
         if not 0 <= self.resample_threshold <= 1:
