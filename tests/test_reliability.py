@@ -770,3 +770,18 @@ def test_kinematics_of_another_type_is_refused_before_the_run(value):
 
     with pytest.raises(ValueError, match="kinematics"):
         ManifoldConfig.from_dict({"kinematics": value})
+
+
+def test_the_memory_estimate_is_above_what_runs_took():
+    """Smaller one: the estimate behind the --particles guard said 161/280 MB where a run on Car4 took 231/482 MB
+    (RSS, 600 particles, unrecorded/recorded), so it could let an out-of-memory run through. Measured again:
+    238/457 MB at 600 particles and 283/623 MB at 4000 (300 frames)."""
+    from covviz.resources import run_memory
+
+    car4 = (240, 360, 3)
+    for particles, frames, plain, recorded in [(600, 659, 231e6, 482e6), (600, 300, 238e6, 457e6),
+                                               (4000, 300, 283e6, 623e6)]:
+        assert run_memory(particles, car4, 1, False, frames) > plain
+        assert run_memory(particles, car4, 1, True, frames) > recorded
+        assert run_memory(particles, car4, 1, True, frames) < 1.25 * recorded  # an estimate, not a refusal
+    assert run_memory(600, car4, 1, True, 10_000) > run_memory(600, car4, 1, True, 1000)

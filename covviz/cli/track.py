@@ -185,7 +185,7 @@ def _report_unscored(seq, n_frames: int) -> None:
 def _recorded(args) -> bool:
     return not args.no_save or bool(args.spawn or args.connect or args.serve_web)
 
-def _check_memory(args, frame_shape) -> None:
+def _check_memory(args, frame_shape, n_frames: int = 0) -> None:
     """Fail before tracking if ``--particles`` needs more memory than the machine has free."""
     if args.particles is None:
         return
@@ -197,9 +197,9 @@ def _check_memory(args, frame_shape) -> None:
     if not n or avail is None:
         return
     rec = _recorded(args)
-    need = run_memory(args.particles, frame_shape, n, rec)
+    need = run_memory(args.particles, frame_shape, n, rec, n_frames)
     if need > avail:
-        fixed = run_memory(0, frame_shape, n, rec)
+        fixed = run_memory(0, frame_shape, n, rec, n_frames)
         most = max(0, int((avail - fixed) / ((need - fixed) / args.particles)))
         raise UsageError(
             f"--particles {args.particles} needs about {need / 1e9:.1f} GB of memory and {avail / 1e9:.1f} GB is "
@@ -225,7 +225,7 @@ def _track(args) -> int:
     _report_unscored(seq, n_frames)
     first = seq.frame(0)  # fail early on an unreadable first frame or a bad box
     check_init_box(seq.init_box, first.image.shape)
-    _check_memory(args, first.image.shape)
+    _check_memory(args, first.image.shape, n_frames)
     created: list[Path] = []  # folders made by the checks: removed again if nothing is written
     locks = contextlib.ExitStack()  # one writer per output: held until the last file is written
     try:
