@@ -290,7 +290,7 @@ def test_a_second_run_on_the_same_outputs_is_refused_before_it_writes(tmp_path):
     seq_dir = make_seq(tmp_path, numbered(6), [gt_line(k) for k in range(1, 7)])
     out, rrd = tmp_path / "runs", tmp_path / "same.rrd"
     rrd.write_bytes(b"the other run's recording")
-    stem = result_paths(out, "Seq", "identity", 0)[1].with_suffix("")
+    stem = result_paths(out, "Seq", "identity", 0)[1]
     stem.parent.mkdir(parents=True)
     with hold_outputs([(rrd, "choose another --save")]):  # as a run in another process holds it
         code, _, err = run_main(["track", str(seq_dir), "--trackers", "identity", "--no-progress",

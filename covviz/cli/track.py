@@ -152,7 +152,7 @@ def _hold_outputs(args, seq, save: Path | None, created: list[Path] | None):
     for name in args.trackers:
         _, js = result_paths(args.out, seq.name, name, args.seed)
         _mkdirs(js.parent, created)
-        outputs.append((js.with_suffix(""), "choose another --out"))
+        outputs.append((js, "choose another --out"))  # the .json stands for its .txt too
     if save is not None:
         outputs.append((save, "choose another --save"))
     return hold_outputs(outputs)

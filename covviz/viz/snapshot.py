@@ -303,8 +303,8 @@ def save_screenshot(client, out: Path) -> None:
         raise SnapshotError(f"the viewer could not write {out}: {' '.join(text.split())[:200]}") from None
 
 
-#: Bytes a screenshot may take per pixel of the window (PNG of a 1600x900 window: 1-3 MB on HiDPI).
-SCREENSHOT_BYTES_PER_PIXEL = 4 * 4
+#: Bytes a screenshot may take per pixel of the window: raw RGBA (its PNG of a 1600x900 window is 0.3-3 MB).
+SCREENSHOT_BYTES_PER_PIXEL = 4
 
 
 def _check_room(outs: list[Path], size: tuple[int, int]) -> None:
