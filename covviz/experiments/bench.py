@@ -458,12 +458,15 @@ def _read_or_rebuild_manifest(out: Path, new: dict, sequences: dict[str, tuple[s
     seeds = [d["seed"] for d in docs if d.get("seed") is not None]
     rebuilt = {**new, "trackers": trackers, "seeds": max(seeds) + 1 if seeds else 1,
                "configs": {d["tracker"]: d.get("config") for d in docs}}
+    how = "it was missing"
     if (out / MANIFEST_NAME).exists():
-        with contextlib.suppress(OSError):
+        try:
             os.replace(out / MANIFEST_NAME, out / (MANIFEST_NAME + ".corrupt"))
+            how = f"the corrupt file is kept as {MANIFEST_NAME}.corrupt"
+        except OSError:
+            how = "the corrupt file is replaced"
     log.warning("%s: rebuilt from the %d results it describes (%s); finished jobs are not run again",
-                out / MANIFEST_NAME, len(docs), "the corrupt file is kept as " + MANIFEST_NAME + ".corrupt"
-                if (out / (MANIFEST_NAME + ".corrupt")).exists() else "it was missing")
+                out / MANIFEST_NAME, len(docs), how)
     return rebuilt
 
 
