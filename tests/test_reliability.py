@@ -408,15 +408,15 @@ def test_spawn_starts_the_viewer_it_found(monkeypatch):
     """Defect 11: attach_sinks handed the search to rerun, which looks in PATH only."""
     import rerun as rr
 
-    from covviz.viz import sinks, snapshot
+    from covviz.viz import sinks
 
     calls = []
     monkeypatch.setattr(rr, "spawn", lambda **kw: calls.append(kw))
-    monkeypatch.setattr(snapshot, "find_viewer", lambda: "/opt/venv/bin/rerun")
+    monkeypatch.setattr(sinks, "find_viewer", lambda: "/opt/venv/bin/rerun")
     stream = sinks.new_recording()
     sinks.attach_sinks(stream, spawn=True, port=9911)
     assert calls and calls[0]["executable_path"] == "/opt/venv/bin/rerun" and calls[0]["connect"] is False
-    monkeypatch.setattr(snapshot, "find_viewer", lambda: None)
+    monkeypatch.setattr(sinks, "find_viewer", lambda: None)
     code, _, err = run_main(["track", "--trackers", "identity", "--no-progress", "--no-save", "--spawn"])
     assert code == 2 and "--spawn: no Rerun viewer found" in one_error_line(err)
 
@@ -785,3 +785,56 @@ def test_the_memory_estimate_is_above_what_runs_took():
         assert run_memory(particles, car4, 1, True, frames) > recorded
         assert run_memory(particles, car4, 1, True, frames) < 1.25 * recorded  # an estimate, not a refusal
     assert run_memory(600, car4, 1, True, 10_000) > run_memory(600, car4, 1, True, 1000)
+
+
+def _container_sizes(obj, prefix: str) -> dict[str, tuple[int, int | None]]:
+    """``(length, maxlen)`` of every list, dict, set or deque attribute of ``obj`` (one level), by name."""
+    from collections import deque
+
+    return {f"{prefix}.{k}": (len(v), getattr(v, "maxlen", None)) for k, v in vars(obj).items()
+            if isinstance(v, (list, dict, set, deque))}
+
+
+def test_what_the_recorder_and_the_diagnosis_keep_stays_bounded(tmp_path):
+    """The memory leak of a recorded run (~16-25 MB per 1000 frames): no structure of the recorder or of the
+    drift diagnosis grows with the frames (only the lists of events, one entry an event). The growth is in
+    Rerun's native recording stream (flat with the stream disabled; Python heap, arrow pool and object
+    counts flat): see the issue 19 notes."""
+    from covviz.data.synthetic import SyntheticConfig, SyntheticSequence
+    from covviz.diagnosis.drift import Diagnoser
+    from covviz.runner import run
+    from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
+    from covviz.viz.logger import LoggerConfig, RerunLogger
+    from covviz.viz.sinks import attach_sinks, close_stream, new_recording
+
+    per_event = {"logger.losses", "logger.drifts", "logger.diagnoses", "diag.events", "diag.diagnoses",
+                 "diag.suspects"}
+    diag = Diagnoser()
+    stream = new_recording()
+    attach_sinks(stream, save=tmp_path / "b.rrd")
+    logger = RerunLogger(stream, LoggerConfig(mds_every=10, seed=0, diagnosis=diag.config), diagnoser=diag)
+    seen: dict[int, dict[str, int]] = {}
+
+    class Probe:
+        def on_frame(self, frame, records):
+            if frame.index in (60, 199):
+                sizes = {**_container_sizes(logger, "rerun_logger"), **_container_sizes(diag, "diagnoser")}
+                for s in logger._states:
+                    sizes.update(_container_sizes(s, "logger"))
+                for s in diag.states:
+                    sizes.update(_container_sizes(s, "diag"))
+                seen[frame.index] = sizes
+
+    seq = SyntheticSequence(SyntheticConfig(n_frames=200))
+    run(ManifoldTracker(ManifoldConfig(n_particles=60), rng=0), seq, [logger, Probe()], seed=0)
+    close_stream(stream)
+    early, late = seen[60], seen[199]
+    assert early.keys() == late.keys() and len(early) >= 10
+    # What grew is a deque with a bound (recent frames: history, drawn, healthy gap), within it.
+    grew = {k: (early[k], late[k]) for k in early if late[k][0] > early[k][0] and k not in per_event
+            and not (late[k][1] is not None and late[k][0] <= late[k][1])}
+    assert not grew, grew
+    assert {k for k in early if late[k][0] > early[k][0] and k not in per_event} <= {
+        "diag.history", "logger.drawn", "logger.healthy_gap"}
+    n_events = sum(late[k][0] for k in per_event if k in late)
+    assert n_events < 40  # events, not frames

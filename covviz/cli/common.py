@@ -199,7 +199,7 @@ def _check_viewer(args) -> None:
     """``--spawn``: fail before the work starts if no viewer can be found (:func:`covviz.viz.snapshot.find_viewer`);
     ``--connect``: if no viewer listens at the URL."""
     if getattr(args, "spawn", False):
-        from covviz.viz.snapshot import find_viewer
+        from covviz.viz.viewer import find_viewer
 
         if find_viewer() is None:
             raise UsageError("--spawn: no Rerun viewer found (not installed with rerun-sdk, beside covviz, nor in "

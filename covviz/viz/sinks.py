@@ -29,6 +29,7 @@ from pathlib import Path
 import rerun as rr
 
 from covviz.errors import InputError, WriteError, free_space
+from covviz.viz.viewer import find_viewer
 
 __all__ = [
     "APPLICATION_ID",
@@ -39,6 +40,7 @@ __all__ = [
     "FLUSH_TIMEOUT",
     "attach_sinks",
     "close_stream",
+    "find_viewer",
     "new_recording",
     "recording_complete",
     "viewer_reachable",
@@ -129,8 +131,6 @@ def attach_sinks(
     if save is not None:
         sinks.append(rr.FileSink(str(save)))
     if spawn:
-        from covviz.viz.snapshot import find_viewer
-
         exe = find_viewer()
         if exe is None:
             raise InputError("--spawn: no Rerun viewer found (not installed with rerun-sdk, beside covviz, nor in "

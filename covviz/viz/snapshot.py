@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 from covviz.errors import InputError, free_space
+from covviz.viz.viewer import find_viewer
 
 log = logging.getLogger("covviz")
 
@@ -63,29 +64,6 @@ def vulkan_available() -> bool:
     if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):
         return True
     return any(glob.glob(os.path.join(d, "*.json")) for d in VULKAN_ICD_DIRS)
-
-
-def find_viewer() -> str | None:
-    """Path of the ``rerun`` viewer, or None: ``$RERUN_CLI_PATH``, the native binary of the installed
-    ``rerun_cli`` package, a ``rerun`` beside this Python or beside the running ``covviz`` script (a
-    virtual environment's ``bin/``, used without activating it), then ``PATH``."""
-    import sys
-
-    env = os.environ.get("RERUN_CLI_PATH")
-    if env and Path(env).is_file():
-        return env
-    try:
-        import rerun_cli
-
-        exe = Path(rerun_cli.__file__).with_name("rerun")
-        if exe.is_file():
-            return str(exe)
-    except ImportError:
-        pass
-    for folder in (Path(sys.executable).parent, Path(sys.argv[0]).parent if sys.argv and sys.argv[0] else None):
-        if folder is not None and (folder / "rerun").is_file() and os.access(folder / "rerun", os.X_OK):
-            return str(folder / "rerun")
-    return shutil.which("rerun")
 
 
 def _free_port() -> int:
