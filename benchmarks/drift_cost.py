@@ -31,7 +31,7 @@ def main(argv=None) -> int:
 
     from covviz.data.sequences import open_sequence
     from covviz.diagnosis.detector import DriftWatch
-    from covviz.runner import run
+    from covviz.runner import NOTHING, Observer, run
     from covviz.threads import limit_threads
     from covviz.trackers import STOCHASTIC, make_tracker
 
@@ -42,12 +42,16 @@ def main(argv=None) -> int:
     print("| tracker | particles | signals (ms CPU / frame) | model + alarms | detector, whole replay | "
           "tracker run (process CPU / frame, decoding included) |")
     print("|---|---:|---:|---:|---:|---:|")
-    class Capture:
+    class Capture(Observer):
         def __init__(self):
             self.items, self.cpu = [], []
             self._t = None
+            self.start = None
 
-        def on_frame(self, frame, records):
+        def on_start(self, start, found):
+            self.start = start
+
+        def on_frame(self, frame, records, found):
             self.items.append((frame, records))
 
     with limit_threads(args.threads):
@@ -61,10 +65,10 @@ def main(argv=None) -> int:
             best = None
             for _ in range(args.repeats):
                 watch = DriftWatch()
-                watch.on_start(seq, [tracker])
+                found = watch.on_start(cap.start, NOTHING)
                 t0 = time.thread_time()
                 for frame, records in cap.items:
-                    watch.on_frame(frame, records)
+                    watch.on_frame(frame, records, found)
                 total = (time.thread_time() - t0) / len(cap.items)
                 cpu = watch.cpu_ms()
                 if best is None or total < best[0]:

@@ -1,22 +1,24 @@
 """What a run needs from the machine, estimated before it starts: memory.
 
 The estimate is an upper bound calibrated on peak RSS (``ru_maxrss`` of
-``covviz track``, manifold and ipca, 2-core Linux box, numpy 2, rerun 0.41):
+``covviz track``, 2-core Linux box, numpy 2, numba kernels loaded, rerun 0.41;
+issue 19 found the earlier constants, set before the compiled kernels and the
+drift diagnosis, 30-40% below what runs took):
 
-====================================  ===========  ================
-run                                   no recording  with a recording
-====================================  ===========  ================
-600 particles, 360×240 frames          112 MB       219 MB
-600 particles, 1440×960 frames         147 MB       301 MB
-manifold, 16 000 particles             271 MB       397 MB
-ipca, 16 000 particles                 284 MB       424 MB
-manifold, 64 000 particles             762 MB       –
-====================================  ===========  ================
+=======================================  ===========  ================
+run (Car4, 360×240, 300 frames)          no recording  with a recording
+=======================================  ===========  ================
+manifold, 600 particles                  238 MB       457 MB
+manifold, 4000 particles                 283 MB       623 MB
+manifold, 600 particles, 659 frames      231 MB       482 MB (issue 19)
+=======================================  ===========  ================
 
-so about 10–12 KB a particle (the particle set, its warped patches and
-features are processed in blocks), 8–9 KB more with a recording (the records
-queued for the logger thread), 8–10 frames' worth of pixels (20 with a
-recording), and ~110 MB for Python, numpy and OpenCV (~220 MB with Rerun).
+so about 13 KB a particle (the particle set, its warped patches and
+features are processed in blocks), 49 KB with a recording (the records
+queued for the logger thread, the particles' regions and weights it draws),
+~230 MB for Python, numpy, OpenCV and the kernels (~420 MB with Rerun and the
+recorder's views), and, recorded, what Rerun's encoder holds as the recording
+grows (see :data:`RECORDING_BYTES_PER_FRAME`).
 """
 
 from __future__ import annotations
@@ -25,18 +27,21 @@ from pathlib import Path
 
 __all__ = ["available_memory", "run_memory"]
 
-#: Python, numpy, OpenCV (and Rerun, with a recording), bytes.
-BASE_BYTES = 150_000_000
-BASE_BYTES_RECORDING = 260_000_000
-#: Per particle and particle tracker, bytes (measured ≤ 12.3 KB; 21 KB with a recording).
-PARTICLE_BYTES = 13_000
-PARTICLE_BYTES_RECORDING = 22_000
+#: Python, numpy, OpenCV, the compiled kernels (and Rerun, with a recording), bytes (measured 227 / 420 MB).
+BASE_BYTES = 245_000_000
+BASE_BYTES_RECORDING = 450_000_000
+#: Per particle and particle tracker, bytes (measured 13.2 KB; 48.8 KB with a recording).
+PARTICLE_BYTES = 15_000
+PARTICLE_BYTES_RECORDING = 55_000
 #: Frames' worth of RGB pixels held at once (measured ~9; ~20 with a recording).
 FRAMES_HELD = 12
 FRAMES_HELD_RECORDING = 28
+#: Resident memory a recorded run gains per frame after warm-up (Rerun's native side), bytes.
+RECORDING_BYTES_PER_FRAME = 20_000
 
 
-def run_memory(n_particles: int, frame_shape, n_trackers: int = 1, recording: bool = False) -> int:
+def run_memory(n_particles: int, frame_shape, n_trackers: int = 1, recording: bool = False,
+               n_frames: int = 0) -> int:
     """Upper estimate of the peak memory of a run, in bytes.
 
     Parameters
@@ -49,12 +54,14 @@ def run_memory(n_particles: int, frame_shape, n_trackers: int = 1, recording: bo
         Particle trackers in the run (each holds its own particles).
     recording : bool
         Whether the run is recorded (Rerun).
+    n_frames : int
+        Frames to track (a recorded run grows with them).
     """
     h, w = int(frame_shape[0]), int(frame_shape[1])
     frame = h * w * 3
     if recording:
         return int(BASE_BYTES_RECORDING + FRAMES_HELD_RECORDING * frame
-                   + n_trackers * n_particles * PARTICLE_BYTES_RECORDING)
+                   + n_trackers * n_particles * PARTICLE_BYTES_RECORDING + n_frames * RECORDING_BYTES_PER_FRAME)
     return int(BASE_BYTES + FRAMES_HELD * frame + n_trackers * n_particles * PARTICLE_BYTES)
 
 

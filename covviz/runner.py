@@ -430,8 +430,8 @@ def run_many(
                 if rec is None:
                     rec = FrameRecord(index=i, box=box, tracker=tr.name)
                 records.append(rec)
-            done = i + 1
             if i == 0:
+                done = i + 1  # the results so far hold the first frame when the observers start
                 infos = [tracker_info(tr) for tr in trackers]
                 rings = [CheckpointRing(*checkpoints) if (checkpoints and info.snapshots) else None
                          for info in infos]
@@ -446,9 +446,14 @@ def run_many(
             for ring, tr in zip(rings, trackers):
                 if ring is not None and i % ring.every == 0:
                     ring.add(i, tr.snapshot())
-            frame_found = found
-            for ob in observers:
-                frame_found = ob.on_frame(frame, records, frame_found) or frame_found
+            # A frame counts as done once every observer has it: a stop signal while one waits
+            # (the recorder's queue full) is held until then, so the recording and the results
+            # end on the same frame.
+            with shielded():
+                done = i + 1
+                frame_found = found
+                for ob in observers:
+                    frame_found = ob.on_frame(frame, records, frame_found) or frame_found
             if periodic:
                 now = time.monotonic()
                 partial = None

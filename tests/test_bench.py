@@ -381,10 +381,36 @@ def test_corrupt_results_file(results, root, capsys, command):
     assert str(js) in msg and "corrupt results file" in msg
 
 
-def test_corrupt_manifest(results, root, capsys):
+@pytest.mark.parametrize("damage", ["corrupt", "deleted"])
+def test_a_corrupt_or_deleted_manifest_is_rebuilt_from_the_results(results, root, damage):
+    """Issue 19, defect 13: every finished result ran again (after 'delete it, or --force')."""
+    manifest = results / "bench_manifest.json"
+    before_doc = json.loads(manifest.read_text())
+    if damage == "corrupt":
+        manifest.write_text("{")
+    else:
+        manifest.unlink()
+    before = result_mtimes(results)
+    summary = rerun(root, results)
+    assert summary["run"] == 0 and summary["skipped"] == N_JOBS and summary["failed"] == []
+    assert result_mtimes(results) == before
+    after = json.loads(manifest.read_text())
+    for key in ("root", "sequences", "seeds", "stochastic", "max_frames", "particles", "configs"):
+        assert after[key] == before_doc[key], key
+    assert sorted(after["trackers"]) == sorted(before_doc["trackers"])
+    assert (results / "bench_manifest.json.corrupt").exists() == (damage == "corrupt")
+
+
+def test_a_corrupt_manifest_beside_foreign_results_is_not_rebuilt(results, root, capsys):
     (results / "bench_manifest.json").write_text("{")
+    js = result_paths(results, "beta", "identity", None)[1]
+    doc = json.loads(js.read_text())
+    del doc["bench"]  # as covviz track writes it
+    js.write_text(json.dumps(doc))
     assert bench_cli(root, results, "--trackers", "identity") == 2
-    assert "corrupt bench manifest" in one_line_error(capsys)
+    line = one_line_error(capsys)
+    assert "corrupt bench manifest, and it cannot be rebuilt" in line and "not a bench result" in line
+    assert (results / "bench_manifest.json").read_text() == "{"
 
 
 def test_report_on_a_corrupt_manifest_names_the_command_that_has_force(results, capsys):

@@ -135,9 +135,12 @@ def test_otb_groundtruth_shorter_than_frames(tmp_path):
     np.testing.assert_array_equal(seq.frame(4).image, expected_rgb(4))
 
 
-def test_otb_groundtruth_longer_than_frames_is_truncated(tmp_path):
+def test_otb_groundtruth_longer_than_frames_is_refused_by_number_and_truncated_by_order(tmp_path):
     gt = "".join(f"{k + 1},1,5,5\n" for k in range(7))
-    seq = OTBSequence(make_otb(tmp_path, n_frames=4, gt_text=gt))
+    folder = make_otb(tmp_path, n_frames=4, gt_text=gt)
+    with pytest.raises(SequenceError, match="7 rows for 4 frames .*--frames-by order"):
+        OTBSequence(folder)
+    seq = OTBSequence(folder, frames_by="order")
     assert len(seq) == 4 and seq.groundtruth.shape == (4, 4)
     assert seq.n_gt_lines == 7
     np.testing.assert_array_equal(seq.groundtruth[:, 0], [0, 1, 2, 3])
@@ -577,9 +580,18 @@ def test_read_boxes_polygon_is_bounding_box_property(tmp_path, pts):
         np.testing.assert_allclose([x, y, x + w, y + h], [*xy.min(0), *xy.max(0)], atol=1e-9)
 
 
-def test_read_boxes_skips_blank_lines_and_reads_empty_files(tmp_path):
+@pytest.mark.parametrize("text, line", [("\n1,1,5,5\n2,2,5,5\n", 1), ("1,1,5,5\n\n   \n2,2,5,5\n", 2),
+                                        ("1,1,5,5\n \t\n2,2,5,5", 2)])
+def test_read_boxes_refuses_a_blank_line_before_the_last_box(tmp_path, text, line):
     path = tmp_path / "b.txt"
-    path.write_text("\n1,1,5,5\n\n   \n2,2,5,5\n")
+    path.write_text(text)
+    with pytest.raises(SequenceError, match=f"b.txt:{line}: a blank line .*NaN,NaN,NaN,NaN"):
+        read_boxes(path)
+
+
+def test_read_boxes_reads_trailing_blank_lines_and_empty_files(tmp_path):
+    path = tmp_path / "b.txt"
+    path.write_text("1,1,5,5\n2,2,5,5\n\n  \n")
     np.testing.assert_array_equal(read_boxes(path), [[0, 0, 5, 5], [1, 1, 5, 5]])
     path.write_text("")
     assert read_boxes(path).shape == (0, 4)

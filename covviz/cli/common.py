@@ -105,6 +105,18 @@ def add_config_arg(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_frames_by_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--frames-by",
+        choices=("number", "order"),
+        default="number",
+        help="how an OTB/VOT folder's frames get their ground-truth rows: 'number' (default): img/0015.jpg is "
+        "frame 15 and gets row 15, and a gap, a duplicate or unnumbered file, a blank line or more rows than "
+        "frames is refused; 'order': the k-th image file in name order gets row k, whatever its number, and "
+        "extra rows are dropped",
+    )
+
+
 # Rerun options in the style of rr.script_add_args, as our own flags: several sinks at once
 # (a file and a viewer), and no --headless/--stdout, which do not fit a tracking run.
 
@@ -175,16 +187,18 @@ def _remove_empty(created: list[Path]) -> None:
 
 def _check_recording_path(path: Path, n_frames: int, n_trackers: int, created: list[Path] | None = None) -> None:
     """Fail before tracking if the recording cannot be written (one-line UsageError)."""
+    import os
     import shutil
 
     if path.suffix != ".rrd":
-        raise UsageError(f"--save {path}: a recording file must end in .rrd")
+        raise UsageError(f"--save {_cut(path)}: a recording file must end in .rrd")
+    _check_name_length(path, "--save")
     if path.is_dir():
         raise UsageError(f"--save {path}: is a folder; give a file name ending in .rrd")
     parent = path.parent if str(path.parent) else Path(".")
     try:
         _mkdirs(parent, created)
-        probe = parent / f".covviz-write-test-{path.stem}"
+        probe = parent / f".covviz-write-test-{os.getpid()}"
         with open(probe, "wb") as fh:
             fh.write(b"\0" * 65536)
             fh.flush()
@@ -194,7 +208,7 @@ def _check_recording_path(path: Path, n_frames: int, n_trackers: int, created: l
                 pass
     except OSError as exc:
         raise UsageError(
-            f"cannot write the recording {path}: {exc.strerror or exc}; choose another --save or --no-save"
+            f"cannot write the recording {_cut(path)}: {exc.strerror or exc}; choose another --save or --no-save"
         ) from None
     need = n_frames * max(1, n_trackers) * RECORDING_BYTES_PER_FRAME + RECORDING_MARGIN_BYTES
     free = shutil.disk_usage(parent).free
@@ -205,7 +219,14 @@ def _check_recording_path(path: Path, n_frames: int, n_trackers: int, created: l
         )
 
 def _check_viewer(args) -> None:
-    """``--connect``: fail before the work starts if no viewer listens at the URL."""
+    """``--spawn``: fail before the work starts if no viewer can be found (:func:`covviz.viz.snapshot.find_viewer`);
+    ``--connect``: if no viewer listens at the URL."""
+    if getattr(args, "spawn", False):
+        from covviz.viz.viewer import find_viewer
+
+        if find_viewer() is None:
+            raise UsageError("--spawn: no Rerun viewer found (not installed with rerun-sdk, beside covviz, nor in "
+                             "PATH); pip install rerun-sdk, or use --save and open the file later")
     if not getattr(args, "connect", None):
         return
     from covviz.viz.sinks import DEFAULT_VIEWER_URL, viewer_reachable
@@ -215,9 +236,44 @@ def _check_viewer(args) -> None:
         raise UsageError(f"--connect: no viewer listens at {url}; start one with 'rerun', or use --spawn")
 
 def default_recording_path(sequence_name: str, trackers: list[str], seed: int) -> Path:
-    """``recordings/<sequence>-<tracker+tracker>-s<seed>.rrd``."""
+    """``recordings/<sequence>-<tracker+tracker>-s<seed>.rrd``.
+
+    A sequence name too long for a file name is cut, with 8 hex digits of its
+    hash so that two long names stay two files.
+    """
+    import hashlib
+
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in sequence_name) or "sequence"
-    return Path("recordings") / f"{safe}-{'+'.join(trackers)}-s{seed}.rrd"
+    tail = f"-{'+'.join(trackers)}-s{seed}.rrd"
+    room = NAME_MAX - len(tail.encode()) - RESERVED_NAME_BYTES
+    if len(safe.encode()) > room:
+        digest = hashlib.sha1(sequence_name.encode()).hexdigest()[:8]
+        safe = safe.encode()[: max(1, room - 9)].decode(errors="ignore") + "_" + digest
+    return Path("recordings") / f"{safe}{tail}"
+
+#: Longest file name (bytes) on the file systems we write to (ext4, xfs, tmpfs, APFS, NTFS: 255).
+NAME_MAX = 255
+#: Bytes a file name must leave for the suffixes written beside it (``.part``).
+RESERVED_NAME_BYTES = 5
+
+def _check_name_length(path: Path, option: str) -> None:
+    """A one-line :class:`UsageError` if the file name of ``path`` is too long to create (ENAMETOOLONG)."""
+    import os
+
+    name = os.fsencode(Path(path).name)
+    for part in Path(path).parts[:-1]:
+        if len(os.fsencode(part)) > NAME_MAX:
+            raise UsageError(f"{option} {_cut(path)}: a folder name in it is {len(os.fsencode(part))} bytes, longer "
+                             f"than the {NAME_MAX} a file system allows; give a shorter path")
+    if len(name) > NAME_MAX - RESERVED_NAME_BYTES:
+        raise UsageError(f"{option} {_cut(path)}: the file name is {len(name)} bytes, longer than the "
+                         f"{NAME_MAX - RESERVED_NAME_BYTES} covviz can write (the file system allows {NAME_MAX}); "
+                         "give a shorter name")
+
+def _cut(path, keep: int = 80) -> str:
+    """A path for a one-line message: a very long one is cut in the middle."""
+    s = str(path)
+    return s if len(s) <= keep else f"{s[: keep // 2]}…{s[-keep // 2:]}"
 
 def _check_out_dir(out: Path, created: list[Path] | None = None) -> None:
     try:

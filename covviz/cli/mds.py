@@ -11,6 +11,8 @@ from covviz.cli.common import (
     _check_recording_path,
     _check_viewer,
     _q,
+    _remove_empty,
+    add_frames_by_arg,
     add_recording_args,
     log,
     nonneg_int,
@@ -96,6 +98,7 @@ def add_mds_parser(sub) -> argparse.ArgumentParser:
                    help="folder for the figures (default recordings/)")
     p.add_argument("--no-png", action="store_true", help="write no figures (the numbers are still printed)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_frames_by_arg(p)
     add_recording_args(p, mds_options=False)
     p.set_defaults(func=cmd_mds)
     return p
@@ -107,11 +110,12 @@ def cmd_mds(args) -> int:
         return _mds(args)
 
 def _mds(args) -> int:
-    from covviz.viz.mds_figures import DEFAULT_FRAMES, MDSFiguresConfig, random_walk_data, separation_data
+    from covviz.viz.mds_figures import DEFAULT_FRAMES, MDSFiguresConfig
 
-    seq = open_sequence(args.sequence, box=args.box)
+    seq = open_sequence(args.sequence, box=args.box, frames_by=args.frames_by)
     if len(seq) < 2:
         raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
+    seq.check_frames(len(seq))
     cfg = MDSFiguresConfig(
         frames=tuple(DEFAULT_FRAMES if args.frames is None else args.frames),
         max_target=max(2, args.max_target),
@@ -125,11 +129,20 @@ def _mds(args) -> int:
         raise UsageError("--save and --no-save contradict each other; give one")
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in seq.name) or "sequence"
     save = None if args.no_save else (args.save or Path("recordings") / f"{safe}-mds.rrd")
+    created: list[Path] = []  # folders the checks made: removed again if the command ends before writing
+    try:
+        return _mds_figures(args, seq, cfg, safe, save, created)
+    finally:
+        _remove_empty(created)
+
+def _mds_figures(args, seq, cfg, safe: str, save: Path | None, created: list[Path]) -> int:
+    from covviz.viz.mds_figures import random_walk_data, separation_data
+
     if save is not None:
-        _check_recording_path(save, 10, 1)
+        _check_recording_path(save, 10, 1, created)
     _check_viewer(args)
     if not args.no_png:
-        _check_out_dir(args.png_dir)
+        _check_out_dir(args.png_dir, created)
     progress = not args.no_progress
     # One observation model for both figures: the one the tracker of figure (b) builds at init.
     walk = random_walk_data(seq, cfg, progress=progress)

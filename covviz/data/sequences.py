@@ -27,6 +27,8 @@ ground truth that are missing or invalid are ``nan``.
 from __future__ import annotations
 
 import glob as _glob
+import logging
+import os
 import re
 from pathlib import Path
 
@@ -51,6 +53,11 @@ __all__ = [
 ]
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
+#: How frames are matched to ground-truth rows: ``number`` (the default: the file numbered k is frame k and gets
+#: row k; a gap, a duplicate, an unnumbered file or more rows than frames is refused) or ``order`` (the k-th
+#: image file in natural name order gets row k, whatever the numbers; extra rows are dropped).
+FRAMES_BY = ("number", "order")
+log = logging.getLogger("covviz")
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".mpg", ".mpeg", ".m4v")
 
 
@@ -61,24 +68,35 @@ _SEP = re.compile(r"[,\s;]+")
 
 
 def read_boxes(path: str | Path, one_based: bool = True) -> np.ndarray:
-    """Read a box file (OTB ground truth or results) into ``(n, 4)`` 0-based boxes.
+    """Read a box file (OTB ground truth or results) into ``(n, 4)`` 0-based boxes, row k for line k.
 
     Lines hold ``x,y,w,h`` separated by commas, tabs or spaces; lines with 8
     numbers are polygons ``x1,y1,…,x4,y4`` and become their axis-aligned
     bounding box. ``NaN`` fields or non-positive sizes mark a missing box and
-    become a ``nan`` row.
+    become a ``nan`` row. A UTF-8 byte-order mark is accepted; blank lines at
+    the end are not rows. Line k is frame k's box, so a blank line before the
+    last box would move every later box onto the frame before its own: it is
+    refused.
 
     Raises
     ------
     SequenceError
-        If a line does not hold 4 (or 8) numbers.
+        If the file cannot be read, a line does not hold 4 (or 8) numbers, or a
+        blank line comes before the last box.
     """
     path = Path(path)
+    text = _read_box_text(path)
     rows = []
-    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    for lineno, line in enumerate(lines, 1):
         line = line.strip()
         if not line:
-            continue
+            raise SequenceError(
+                f"{path}:{lineno}: a blank line (line k is frame k's box, so it would shift every later box "
+                "one frame early); write NaN,NaN,NaN,NaN there for a frame without a box, or delete the line"
+            )
         parts = [p for p in _SEP.split(line) if p]
         try:
             vals = [float(p) for p in parts]
@@ -98,6 +116,22 @@ def read_boxes(path: str | Path, one_based: bool = True) -> np.ndarray:
     if one_based:
         boxes[:, :2] -= 1.0
     return boxes
+
+
+def _read_box_text(path: Path) -> str:
+    """The text of a box file (a UTF-8 byte-order mark dropped); :class:`SequenceError` if it is not a readable file."""
+    try:
+        return path.read_text(encoding="utf-8-sig", errors="replace")
+    except IsADirectoryError:
+        raise SequenceError(f"{path}: is a folder, not a box file; put the boxes in a file of that name") from None
+    except FileNotFoundError:
+        if path.is_symlink():
+            raise SequenceError(
+                f"{path}: a symbolic link to {os.readlink(path)}, which does not exist; fix or replace the link"
+            ) from None
+        raise SequenceError(f"{path}: no such file") from None
+    except OSError as exc:
+        raise SequenceError(f"cannot read {path}: {exc.strerror or exc}") from None
 
 
 def write_boxes(path: str | Path, boxes: np.ndarray, one_based: bool = True) -> None:
@@ -160,37 +194,64 @@ def _jpeg_complete(data: bytes) -> bool:
 _NUMBERED = re.compile(r"^(.*?)(\d+)$")
 
 
+def _natural_key(p: Path):
+    """Name order with numbers compared as numbers: 2.png before 10.png."""
+    return [(0, int(t), "") if t.isdigit() else (1, 0, t) for t in re.split(r"(\d+)", p.name) if t]
+
+
 def _list_images(folder: Path) -> list[Path]:
-    files = [p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file()]
-    return sorted(files, key=lambda p: (len(p.stem), p.stem))
+    """The image files of a frame folder in natural name order; hidden files (macOS ``._0001.jpg``) are not frames."""
+    files = [p for p in folder.iterdir()
+             if not p.name.startswith(".") and p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file()]
+    return sorted(files, key=_natural_key)
 
 
-def _number_frames(files: list[Path]) -> tuple[list[Path], list[int]]:
-    """Frames by number: the files with the missing numbers put back (as the paths they would have).
+def _number_frames(files: list[Path], by: str = "number") -> tuple[list[Path], list[int]]:
+    """Frames by number: one path per number from the first to the last, and the 0-based positions of the gaps.
 
     OTB and VOT frames are numbered (img/0001.jpg …) and ground-truth row k
-    belongs to the k-th number from the first; a file missing in the middle
-    must not shift every later frame onto the row before its own. Returns the
-    files, one per number from the first to the last, and the 0-based
-    positions of the missing ones. Files not all numbered alike (one prefix,
-    one extension, distinct numbers) are left as they are.
+    belongs to frame number k (number 0 is frame 1 when a file is numbered 0),
+    so a file missing anywhere must not shift every later frame onto the row
+    before its own. The gaps are returned as the paths their files would have
+    (the run is refused before it reaches one, :meth:`Sequence.check_frames`).
+    A file without a number, two files of one number, or a file named unlike
+    the others is refused here. ``by="order"`` takes the files as they are, in
+    natural name order.
+
+    Raises
+    ------
+    SequenceError
+        Naming the file that breaks the numbering and the two ways out.
     """
-    if len(files) < 2:
-        return files, []
-    parts = [_NUMBERED.match(p.stem) for p in files]
-    if not all(parts):
-        return files, []
-    numbers = [int(m.group(2)) for m in parts]
-    if (len({m.group(1) for m in parts}) != 1 or len({p.suffix for p in files}) != 1
-            or len(set(numbers)) != len(numbers)):
-        return files, []
-    first, last = min(numbers), max(numbers)
-    if last - first + 1 == len(files):
-        return sorted(files, key=lambda p: int(_NUMBERED.match(p.stem).group(2))), []
-    by_number = dict(zip(numbers, files))
-    widths = {len(m.group(2)) for m in parts}
+    if by == "order" or not files:
+        return list(files), []
+    out_of_order = "; or --frames-by order to match the image files to the ground-truth rows in name order"
+    parts = {}
+    for p in files:
+        m = _NUMBERED.match(p.stem)
+        if m is None:
+            raise SequenceError(f"{p}: an image without a frame number among the numbered frames; move it out "
+                                f"of {p.parent}{out_of_order}")
+        parts[p] = (m.group(1), int(m.group(2)), len(m.group(2)))
+    prefixes: dict[str, list[Path]] = {}
+    for p, (prefix, _, _) in parts.items():
+        prefixes.setdefault(prefix, []).append(p)
+    if len(prefixes) > 1:
+        common = max(prefixes.values(), key=len)
+        odd = next(v for v in prefixes.values() if v is not common)
+        raise SequenceError(f"{odd[0]}: named unlike the other frames (such as {common[0].name}); move it out of "
+                            f"{odd[0].parent}{out_of_order}")
+    by_number: dict[int, Path] = {}
+    for p, (_, k, _) in parts.items():
+        if k in by_number:
+            raise SequenceError(f"{by_number[k]} and {p.name}: two files for frame number {k}; keep one"
+                                f"{out_of_order}")
+        by_number[k] = p
+    first = 0 if 0 in by_number else 1
+    last = max(by_number)
+    widths = {w for (_, _, w) in parts.values()}
     width = widths.pop() if len(widths) == 1 else 0
-    prefix, suffix, folder = parts[0].group(1), files[0].suffix, files[0].parent
+    prefix, suffix, folder = next(iter(parts.values()))[0], files[0].suffix, files[0].parent
     out, missing = [], []
     for k in range(first, last + 1):
         if k not in by_number:
@@ -200,20 +261,53 @@ def _number_frames(files: list[Path]) -> tuple[list[Path], list[int]]:
 
 
 class _ImageFilesSequence(Sequence):
-    def __init__(self, name: str, files: list[Path], groundtruth: np.ndarray, frame_rate=None):
+    def __init__(self, name: str, files: list[Path], groundtruth: np.ndarray, frame_rate=None,
+                 gt_path: Path | None = None, frames_by: str = "number"):
         if not files:
             raise SequenceError(f"{name}: no frames found (expected image files such as 0001.jpg)")
+        if frames_by not in FRAMES_BY:
+            raise SequenceError(f"frames by {frames_by!r}: expected one of {', '.join(FRAMES_BY)}")
         self.name = name
+        self.frames_by = frames_by
         #: One path per frame number; the files of the numbers in ``missing`` do not exist.
-        self.files, self.missing = _number_frames(files)
+        self.files, self.missing = _number_frames(files, frames_by)
         self.frame_rate = frame_rate
         n = len(self.files)
+        if len(groundtruth) > n:
+            where = gt_path or "the ground truth"
+            if frames_by == "number":
+                raise SequenceError(
+                    f"{where}: {len(groundtruth)} rows for {n} frames ({self.files[0].name} … "
+                    f"{self.files[-1].name}): frames after {self.files[-1].name} are missing or the file has "
+                    "extra rows; restore the frames, delete the extra rows, or --frames-by order to drop them"
+                )
+            log.warning("%s: %d rows for %d frames; the last %d rows are not used (--frames-by order)",
+                        where, len(groundtruth), n, len(groundtruth) - n)
         gt = np.full((n, 4), np.nan)
         m = min(n, len(groundtruth))
         gt[:m] = groundtruth[:m]
         self.groundtruth = gt
+        #: Rows in the ground-truth file; frames after them are tracked but not scored.
         self.n_gt_lines = len(groundtruth)
         self._shape: tuple[tuple, Path] | None = None
+
+    def check_frames(self, n_frames: int) -> None:
+        """Refuse a run over a gap in the numbered frames, naming the first missing file.
+
+        Tracking across a gap would score every later frame against the wrong
+        row, and the OTB results format has no way to skip a frame.
+        """
+        missing = [i for i in self.missing if i < n_frames]
+        if not missing:
+            return
+        first = self.files[missing[0]]
+        more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
+        before = (f"track the {missing[0]} frames before it with --max-frames {missing[0]}" if missing[0]
+                  else "if the ground truth's first row is for the first file there, --frames-by order")
+        raise SequenceError(
+            f"{first}: frame missing{more} (frames are matched to the ground truth by number); restore it, "
+            f"or {before}"
+        )
 
     def _read(self, i: int) -> np.ndarray:
         return _same_size(self, _read_image(self.files[i]), self.files[i])
@@ -235,7 +329,7 @@ def _same_size(seq, img: np.ndarray, path: Path) -> np.ndarray:
 class OTBSequence(_ImageFilesSequence):
     """An OTB folder: ``img/*.jpg`` and ``groundtruth_rect.txt`` (1-based)."""
 
-    def __init__(self, folder: str | Path, groundtruth: str | None = None):
+    def __init__(self, folder: str | Path, groundtruth: str | None = None, frames_by: str = "number"):
         folder = Path(folder)
         if not folder.is_dir():
             raise SequenceError(f"{folder}: no such folder")
@@ -249,7 +343,8 @@ class OTBSequence(_ImageFilesSequence):
             gt_path = cands[0]
         else:
             gt_path = folder / groundtruth
-        super().__init__(folder.name, _list_images(img), read_boxes(gt_path, one_based=True))
+        super().__init__(_folder_name(folder), _list_images(img), read_boxes(gt_path, one_based=True),
+                         gt_path=gt_path, frames_by=frames_by)
 
 
 class VOTSequence(_ImageFilesSequence):
@@ -259,7 +354,7 @@ class VOTSequence(_ImageFilesSequence):
     polygon becomes its axis-aligned bounding box.
     """
 
-    def __init__(self, folder: str | Path):
+    def __init__(self, folder: str | Path, frames_by: str = "number"):
         folder = Path(folder)
         if not folder.is_dir():
             raise SequenceError(f"{folder}: no such folder")
@@ -267,7 +362,14 @@ class VOTSequence(_ImageFilesSequence):
         if not gt_path.is_file():
             raise SequenceError(f"{folder}: no groundtruth.txt (VOT layout)")
         frames_dir = folder / "color" if (folder / "color").is_dir() else folder
-        super().__init__(folder.name, _list_images(frames_dir), read_boxes(gt_path, one_based=False))
+        super().__init__(_folder_name(folder), _list_images(frames_dir), read_boxes(gt_path, one_based=False),
+                         gt_path=gt_path, frames_by=frames_by)
+
+
+def _folder_name(folder: Path) -> str:
+    """A sequence folder's name, also when given as ``.`` or ``..`` (the name of the folder it is)."""
+    name = folder.name if folder.name not in ("", ".", "..") else folder.resolve().name
+    return name or "sequence"
 
 
 class VideoSequence(Sequence):
@@ -331,7 +433,9 @@ class VideoSequence(Sequence):
             self._cap.set(cv2.CAP_PROP_POS_FRAMES, i)
         ok, img = self._cap.read()
         if not ok:
-            raise SequenceError(f"{self._path}: cannot decode frame {i}")
+            before = f"; track the {i} frames before it with --max-frames {i}" if i >= 2 else ""
+            raise SequenceError(f"{self._path}: cannot decode frame {i + 1} (frames count from 1; the video may "
+                                f"be truncated){before}")
         self._next = i + 1
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
@@ -365,7 +469,7 @@ def _escape_existing(pattern: str) -> str:
     return str(Path(_glob.escape(str(head)), *Path(pattern).parts[len(head.parts):]))
 
 
-def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
+def open_sequence(source: str | Path | None = None, box=None, frames_by: str = "number") -> Sequence:
     """Open a sequence from a path, guessing its layout.
 
     Parameters
@@ -379,12 +483,38 @@ def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
     box : array-like, shape (4,), optional
         Initial box (0-based pixels) for videos and globs; for OTB/VOT folders
         it overrides the first ground-truth box.
+    frames_by : {"number", "order"}
+        How an OTB/VOT folder's frames are matched to its ground-truth rows
+        (:data:`FRAMES_BY`).
 
     Raises
     ------
     SequenceError
         With a one-line message saying what is wrong.
     """
+    try:
+        seq = _open(source, box, frames_by)
+    except OSError as exc:  # a name too long for the file system, a folder we may not read …
+        raise SequenceError(f"cannot open {_short(source)}: {exc.strerror or exc}") from None
+    if isinstance(seq, VideoSequence):
+        return seq
+    if box is not None:
+        b = np.asarray(box, dtype=np.float64).reshape(-1)
+        if b.shape != (4,):
+            raise SequenceError(f"--box must be 4 numbers x,y,w,h; got {box!r}")
+        seq.groundtruth = seq.groundtruth.copy()
+        seq.groundtruth[0] = b
+    return seq
+
+
+def _short(path, keep: int = 80) -> str:
+    """A path for a one-line message: a very long one is cut in the middle."""
+    s = str(path)
+    return s if len(s) <= keep else f"{s[: keep // 2]}…{s[-keep // 2:]} ({len(s)} characters)"
+
+
+def _open(source, box, frames_by: str) -> Sequence:
+    """:func:`open_sequence` before its ``box`` is applied to a folder's first row."""
     if source is None or str(source) == "synthetic":
         seq: Sequence = SyntheticSequence()
     elif str(source).startswith("synthetic:"):
@@ -400,9 +530,9 @@ def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
             return VideoSequence(s, box)
         if p.is_dir():
             if (p / "img").is_dir():
-                seq = OTBSequence(p)
+                seq = OTBSequence(p, frames_by=frames_by)
             elif (p / "groundtruth.txt").is_file():
-                seq = VOTSequence(p)
+                seq = VOTSequence(p, frames_by=frames_by)
             else:
                 raise SequenceError(
                     f"{p}: not a sequence folder (expected img/ + groundtruth_rect.txt, "
@@ -421,10 +551,4 @@ def open_sequence(source: str | Path | None = None, box=None) -> Sequence:
             return VideoSequence(p, box)
         else:
             raise SequenceError(f"{s}: no such file or folder")
-    if box is not None:
-        b = np.asarray(box, dtype=np.float64).reshape(-1)
-        if b.shape != (4,):
-            raise SequenceError(f"--box must be 4 numbers x,y,w,h; got {box!r}")
-        seq.groundtruth = seq.groundtruth.copy()
-        seq.groundtruth[0] = b
     return seq

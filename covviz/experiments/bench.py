@@ -429,6 +429,64 @@ def _merge_manifest(old: dict | None, new: dict, out: Path, force: bool) -> dict
     return merged
 
 
+def _read_or_rebuild_manifest(out: Path, new: dict, sequences: dict[str, tuple[str, int]]) -> dict | None:
+    """The manifest of ``out``; a corrupt or deleted one rebuilt from the bench results it describes.
+
+    Every result a bench writes names its sequence's path, its tracker, seed,
+    config and covviz version, which is all a manifest holds besides the
+    settings of the command; so when those results are all of this command's
+    sequences and covviz version, the manifest is rebuilt from them (the
+    corrupt file kept as ``bench_manifest.json.corrupt``) and the finished jobs
+    are not run again. Results from ``covviz track`` or of other sequences
+    leave the folder as it was, with the error saying why.
+    """
+    from covviz.experiments.results import FORMAT, ResultError
+
+    try:
+        found = read_manifest(out)
+        if found is not None or not _existing_results(out):
+            return found
+        corrupt = f"{out} holds results but no {MANIFEST_NAME}"
+    except ResultError as exc:
+        if "corrupt" not in str(exc):
+            raise
+        corrupt = f"{out / MANIFEST_NAME}: corrupt bench manifest"
+    docs = []
+    for js in _existing_results(out):
+        try:
+            doc = json.loads(js.read_text())
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+            doc = None
+        if not isinstance(doc, dict) or doc.get("format") != FORMAT or "bench" not in doc:
+            raise BenchError(f"{corrupt}, and it cannot be rebuilt: {js} is not a bench result (from 'covviz track' "
+                             "or another tool?); choose a new --out or use --force")
+        path = (doc.get("bench") or {}).get("path")
+        if doc.get("sequence") not in sequences or path != sequences[doc["sequence"]][0]:
+            raise BenchError(f"{corrupt}, and it cannot be rebuilt: {js} is of {path}, not a sequence under {new['root']} "
+                             "(choose a new --out, or use --force)")
+        if (doc.get("versions") or {}).get("covviz") != new["covviz"]:
+            raise BenchError(f"{corrupt}, and it cannot be rebuilt: {js} was made by covviz "
+                             f"{(doc.get('versions') or {}).get('covviz')} (choose a new --out, or use --force)")
+        docs.append(doc)
+    if not docs:
+        log.warning("%s: corrupt, and no results beside it; starting afresh", out / MANIFEST_NAME)
+        return None
+    trackers = list(dict.fromkeys(d["tracker"] for d in sorted(docs, key=lambda d: d["tracker"])))
+    seeds = [d["seed"] for d in docs if d.get("seed") is not None]
+    rebuilt = {**new, "trackers": trackers, "seeds": max(seeds) + 1 if seeds else 1,
+               "configs": {d["tracker"]: d.get("config") for d in docs}}
+    how = "it was missing"
+    if (out / MANIFEST_NAME).exists():
+        try:
+            os.replace(out / MANIFEST_NAME, out / (MANIFEST_NAME + ".corrupt"))
+            how = f"the corrupt file is kept as {MANIFEST_NAME}.corrupt"
+        except OSError:
+            how = "the corrupt file is replaced"
+    log.warning("%s: rebuilt from the %d results it describes (%s); finished jobs are not run again",
+                out / MANIFEST_NAME, len(docs), how)
+    return rebuilt
+
+
 def _is_done(job: Job, out: Path, config: dict) -> bool:
     """Whether ``job``'s result exists and is complete; raises on a corrupt or foreign one."""
     from covviz.experiments.results import load_result, result_paths
@@ -578,7 +636,7 @@ def _bench_locked(
         "max_frames": max_frames,
         "particles": particles,
     }
-    old = None if force else read_manifest(out)  # --force also replaces a corrupt manifest
+    old = None if force else _read_or_rebuild_manifest(out, manifest, sequences)  # --force replaces a corrupt one
     manifest = _merge_manifest(old, manifest, out, force)
     manifest["stochastic"] = sorted(t for t in manifest["trackers"] if base_name(t) in STOCHASTIC)
     manifest["configs"] = {**((old or {}).get("configs") or {}), **configs}

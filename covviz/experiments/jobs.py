@@ -37,6 +37,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Protocol
 
 from covviz.runner import Observer
@@ -211,6 +212,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
     from covviz.threads import limit_threads
 
     seq = open_sequence(job.path)
+    seq.check_frames(len(seq) if job.max_frames is None else min(len(seq), job.max_frames))
     tracker = job.make_tracker()
     failures = _FailureCounter()
     diagnoser = Diagnoser()
@@ -295,6 +297,28 @@ def describe_exit(code: int | None) -> str:
     return f"exit code {code}"
 
 
+def job_environment(env: dict | None = None) -> dict:
+    """The environment of a job process: ``env`` (default: this one's) with this covviz first on its path.
+
+    The folder that holds the ``covviz`` package this process imported goes
+    first on ``PYTHONPATH`` (unless it is a site-packages folder, already on
+    every path), so a job runs the same code as the command that started it:
+    from a source tree, an editable install, or with a clone in the current
+    folder.
+    """
+    import site
+
+    import covviz
+
+    env = dict(os.environ if env is None else env)
+    root = str(Path(covviz.__file__).resolve().parents[1])
+    sites = {str(Path(p).resolve()) for p in [*site.getsitepackages(), site.getusersitepackages()]}
+    if root not in sites:
+        rest = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and p != root]
+        env["PYTHONPATH"] = os.pathsep.join([root, *rest])
+    return env
+
+
 class JobProcess:
     """One job in a fresh ``python -m covviz.experiments.jobs`` process (see the module docstring).
 
@@ -307,12 +331,14 @@ class JobProcess:
         self.started = time.monotonic()
         self._stderr = tempfile.TemporaryFile()  # noqa: SIM115 - closed in _stderr_tail()
         with sigint_deferred():
+            # -P: not the current folder first on the path, where a clone's folder called covviz would
+            # be imported as an empty package; the covviz this process runs comes first instead.
             self._proc = subprocess.Popen(
-                [sys.executable, "-m", "covviz.experiments.jobs", job.label],
+                [sys.executable, "-P", "-m", "covviz.experiments.jobs", job.label],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 stderr=self._stderr,
-                env=env,
+                env=job_environment(env),
                 process_group=0,  # a terminal's Ctrl-C reaches the command, which ends its jobs
                 close_fds=True,
             )

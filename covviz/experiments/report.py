@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from covviz.experiments.results import ResultError, load_result, read_manifest
+from covviz.experiments.results import READABLE_FORMATS, ResultError, load_result, read_manifest
 from covviz.metrics import IOU_THRESHOLDS, ON_TRACK_GAMMA, PRECISION_AT, PRECISION_THRESHOLDS
 
 __all__ = ["BASELINE", "OURS", "REPORT_NAME", "Run", "Summary", "load_runs", "render", "summarize", "write_report"]
@@ -118,6 +118,21 @@ def _f(v) -> float:
         return float("nan")
 
 
+def is_own_result(js: Path) -> bool:
+    """Whether ``js`` is a covviz result, whole or half-written: its text starts with our format tag.
+
+    :func:`covviz.experiments.results.save_result` writes ``"format"`` first, so
+    a result cut short still shows it; any other JSON in the folder is not ours
+    to judge (nor to ask the user to delete).
+    """
+    try:
+        with open(js, "rb") as fh:
+            head = fh.read(256)
+    except OSError:
+        return False
+    return any(f'"format": "{tag}"'.encode() in head for tag in READABLE_FORMATS)
+
+
 def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
     """Read the manifest and every result of a bench folder.
 
@@ -156,7 +171,13 @@ def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
     }
     seen_thr = False
     runs: list[Run] = []
+    foreign = [js for js in files if not is_own_result(js)]
+    if foreign:
+        log.warning("%s: skipped %d JSON file(s) that are not covviz results (%s%s)", d, len(foreign),
+                    foreign[0], " …" if len(foreign) > 1 else "")
     for js in files:
+        if js in foreign:
+            continue
         doc, _boxes = load_result(js)
         if trackers is not None and doc.get("tracker") not in trackers:
             continue

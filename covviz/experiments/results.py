@@ -331,7 +331,8 @@ def read_manifest(out: str | Path) -> dict | None:
         m = json.loads(p.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError, OSError) as exc:
         raise ResultError(
-            f"{p}: corrupt bench manifest ({exc.__class__.__name__}); delete it, or run "
+            f"{p}: corrupt bench manifest ({exc.__class__.__name__}); run the 'covviz bench …' that made it "
+            "again (it rebuilds the manifest from the results and runs only what is missing), or "
             "'covviz bench … --force' to re-run everything into this folder"
         ) from None
     if not isinstance(m, dict) or m.get("format") != MANIFEST_FORMAT:

@@ -177,8 +177,27 @@ def _storage(optuna, url: str):
             if attempt < STORAGE_ATTEMPTS and exc.__class__.__name__ in ("IntegrityError", "OperationalError"):
                 time.sleep(0.5 * attempt)
                 continue
-            raise TuneError(f"--storage {url}: cannot open it ({exc.__class__.__name__}: {exc})") from None
+            why = " ".join(str(exc).split("(Background on this error")[0].split())  # one line
+            raise TuneError(f"--storage {url}: cannot open it ({exc.__class__.__name__}: {why})") from None
     raise AssertionError("unreachable")
+
+
+def _db_has_finished_trials(db: Path) -> bool:
+    """Whether the SQLite study ``db`` holds a trial that finished (then it is kept, whatever happened)."""
+    import sqlite3
+
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as con:
+            return bool(con.execute("SELECT COUNT(*) FROM trials WHERE state IN ('COMPLETE', 'PRUNED')").fetchone()[0])
+    except sqlite3.Error:
+        return False
+
+
+def _remove_empty(created: list[Path]) -> None:
+    """Remove the folders this command made, deepest first, if they are still empty."""
+    for d in reversed(created):
+        with contextlib.suppress(OSError):
+            d.rmdir()
 
 
 def _open_study(optuna, storage, name: str, settings: TuneSettings):
@@ -273,88 +292,104 @@ def tune(
         raise TuneError("--trials must be at least 0, --seeds and --jobs at least 1")
     holdout_seeds = seeds if holdout_seeds is None else holdout_seeds
     out = Path(out)
+    created = [p for p in [out, *out.parents] if not p.exists()][::-1]  # made here: removed on an early error
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise TuneError(f"cannot write to {out}: {exc.strerror or exc}; choose another --out") from None
+    db = out / "study.db"
+    db_existed = storage is not None or db.exists()
+    if trials == 0 and not db_existed:
+        _remove_empty(created)
+        raise TuneError(f"--trials 0 reports on an existing study, and {out} holds none; give --trials N to run N "
+                        "trials (or --storage of a study)")
     try:
-        base_cfg = ManifoldConfig.from_dict({**(base or {}), **({"n_particles": particles} if particles else {})})
-    except (ValueError, TypeError) as exc:
-        raise TuneError(f"--config: {exc}") from None
-    try:
-        sequences = read_sequences(Path(root).resolve(), exclude=[out])
-    except BenchError as exc:
-        raise TuneError(str(exc)) from None
-    settings = TuneSettings(tracker, sequences, seeds, max_frames, particles, base_cfg.as_dict())
-    url = storage or f"sqlite:///{(out / 'study.db').resolve()}"
+        try:
+            base_cfg = ManifoldConfig.from_dict({**(base or {}), **({"n_particles": particles} if particles else {})})
+        except (ValueError, TypeError) as exc:
+            raise TuneError(f"--config: {exc}") from None
+        try:
+            sequences = read_sequences(Path(root).resolve(), exclude=[out])
+        except BenchError as exc:
+            raise TuneError(str(exc)) from None
+        settings = TuneSettings(tracker, sequences, seeds, max_frames, particles, base_cfg.as_dict())
+        url = storage or f"sqlite:///{(out / 'study.db').resolve()}"
 
-    # Optuna's own lines (a trial's failure with its traceback, Ctrl-C included) give way to ours.
-    optuna.logging.set_verbosity(optuna.logging.ERROR)
-    study = _open_study(optuna, _storage(optuna, url), study_name, settings)
+        # Optuna's own lines (a trial's failure with its traceback, Ctrl-C included) give way to ours.
+        optuna.logging.set_verbosity(optuna.logging.ERROR)
+        study = _open_study(optuna, _storage(optuna, url), study_name, settings)
 
-    from covviz.trackers.manifold import search_params, suggest_config
+        from covviz.trackers.manifold import search_params, suggest_config
 
-    if not study.trials:
-        study.enqueue_trial(search_params(base_cfg), user_attrs={"base": True}, skip_if_exists=True)
+        if not study.trials:
+            study.enqueue_trial(search_params(base_cfg), user_attrs={"base": True}, skip_if_exists=True)
 
-    executor = make_executor(cluster, jobs, retries)
-    try:
-        n_before = _finished(study)
-        if trials > n_before:
-            log.info("study %r in %s: %d trials finished, running up to %d", study_name, url, n_before, trials)
+        executor = make_executor(cluster, jobs, retries)
+        try:
+            n_before = _finished(study)
+            if trials > n_before:
+                log.info("study %r in %s: %d trials finished, running up to %d", study_name, url, n_before, trials)
 
-            def objective(trial):
-                config = suggest_config(trial, base_cfg).as_dict()
-                trial.set_user_attr("config", config)
-                t0 = time.perf_counter()
-                try:
-                    score = score_config(executor, settings, config, range(seeds), trial, progress,
-                                         desc=f"trial {trial.number}")
-                except optuna.TrialPruned:
-                    log.info("trial %d pruned (%.0f s)", trial.number, time.perf_counter() - t0)
-                    raise
-                except _JobFailed as exc:
-                    log.warning("trial %d failed (the study goes on): %s", trial.number, exc)
-                    raise
-                trial.set_user_attr("per_sequence", score["per_sequence"])
-                trial.set_user_attr("per_seed", {str(k): v for k, v in score["per_seed"].items()})
-                best = _best_value(study)
-                log.info("trial %d: mean success AUC %.4f (best so far %s; %.0f s)", trial.number, score["mean"],
-                         "this one" if best is None or score["mean"] > best else f"{best:.4f}",
-                         time.perf_counter() - t0)
-                return score["mean"]
+                def objective(trial):
+                    config = suggest_config(trial, base_cfg).as_dict()
+                    trial.set_user_attr("config", config)
+                    t0 = time.perf_counter()
+                    try:
+                        score = score_config(executor, settings, config, range(seeds), trial, progress,
+                                             desc=f"trial {trial.number}")
+                    except optuna.TrialPruned:
+                        log.info("trial %d pruned (%.0f s)", trial.number, time.perf_counter() - t0)
+                        raise
+                    except _JobFailed as exc:
+                        log.warning("trial %d failed (the study goes on): %s", trial.number, exc)
+                        raise
+                    trial.set_user_attr("per_sequence", score["per_sequence"])
+                    trial.set_user_attr("per_seed", {str(k): v for k, v in score["per_seed"].items()})
+                    best = _best_value(study)
+                    log.info("trial %d: mean success AUC %.4f (best so far %s; %.0f s)", trial.number, score["mean"],
+                             "this one" if best is None or score["mean"] > best else f"{best:.4f}",
+                             time.perf_counter() - t0)
+                    return score["mean"]
 
-            from optuna.study import MaxTrialsCallback
-            from optuna.trial import TrialState
+                from optuna.study import MaxTrialsCallback
+                from optuna.trial import TrialState
 
-            study.optimize(
-                objective,
-                n_trials=trials - n_before,
-                callbacks=[MaxTrialsCallback(trials, states=(TrialState.COMPLETE, TrialState.PRUNED))],
-                catch=(_JobFailed,),
-                gc_after_trial=False,
-            )
-        best = _best_trial(study)
-        holdout = None
-        if holdout_seeds > 0:
-            held = range(seeds, seeds + holdout_seeds)
-            h_base = _holdout(study, executor, settings, None, held, progress, base_cfg.as_dict())
-            h_best = h_base if best.user_attrs.get("base") else _holdout(
-                study, executor, settings, best, held, progress, _trial_config(best, base_cfg)
-            )
-            holdout = {"seeds": list(held), "best": h_best, "base": h_base}
-    finally:
-        executor.close()
-    best_config = out / BEST_NAME
-    best_config.write_text(json.dumps(_trial_config(best, base_cfg), indent=1) + "\n")
-    report = write_tune_report(study, settings, out, url, Path(root), holdout, best_config)
-    return {
-        "best": {"number": best.number, "value": best.value, "params": best.params},
-        "holdout": holdout,
-        "report": report,
-        "best_config": best_config,
-        "trials": _counts(study),
-    }
+                study.optimize(
+                    objective,
+                    n_trials=trials - n_before,
+                    callbacks=[MaxTrialsCallback(trials, states=(TrialState.COMPLETE, TrialState.PRUNED))],
+                    catch=(_JobFailed,),
+                    gc_after_trial=False,
+                )
+            best = _best_trial(study)
+            holdout = None
+            if holdout_seeds > 0:
+                held = range(seeds, seeds + holdout_seeds)
+                h_base = _holdout(study, executor, settings, None, held, progress, base_cfg.as_dict())
+                h_best = h_base if best.user_attrs.get("base") else _holdout(
+                    study, executor, settings, best, held, progress, _trial_config(best, base_cfg)
+                )
+                holdout = {"seeds": list(held), "best": h_best, "base": h_base}
+        finally:
+            executor.close()
+        best_config = out / BEST_NAME
+        best_config.write_text(json.dumps(_trial_config(best, base_cfg), indent=1) + "\n")
+        report = write_tune_report(study, settings, out, url, Path(root), holdout, best_config)
+        return {
+            "best": {"number": best.number, "value": best.value, "params": best.params},
+            "holdout": holdout,
+            "report": report,
+            "best_config": best_config,
+            "trials": _counts(study),
+        }
+    except BaseException:
+        # An error before the study has a finished trial leaves nothing behind: no study.db of
+        # this command's making, no folder it made (a finished trial is kept, whatever happens).
+        if not db_existed and db.exists() and not _db_has_finished_trials(db):
+            with contextlib.suppress(OSError):
+                db.unlink()
+        _remove_empty(created)
+        raise
 
 
 def _trial_config(trial, base_cfg) -> dict:

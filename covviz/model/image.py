@@ -7,7 +7,7 @@ import numpy as np
 
 from covviz.errors import InputError
 
-__all__ = ["MAX_BOX_FRAMES", "check_init_box", "to_gray"]
+__all__ = ["MAX_BOX_FRAMES", "MIN_FRAME_SIDE", "check_init_box", "to_gray"]
 
 
 def to_gray(frame: np.ndarray) -> np.ndarray:
@@ -33,7 +33,8 @@ def check_init_box(box, frame_shape) -> np.ndarray:
     Raises
     ------
     covviz.errors.InputError
-        (a ``ValueError``) If the box is not 4 finite numbers, has zero or
+        (a ``ValueError``) If the frame is smaller than :data:`MIN_FRAME_SIDE`
+        on a side, the box is not 4 finite numbers, has zero or
         negative size, lies entirely outside the frame or is more than
         :data:`MAX_BOX_FRAMES` times its size.
     """
@@ -44,6 +45,11 @@ def check_init_box(box, frame_shape) -> np.ndarray:
     if w <= 0 or h <= 0:
         raise InputError(f"the initial box has zero or negative size (w={w:g}, h={h:g})")
     H, W = frame_shape[:2]
+    if H < MIN_FRAME_SIDE or W < MIN_FRAME_SIDE:
+        raise InputError(
+            f"the frames are {W}x{H} pixels; tracking needs frames of at least {MIN_FRAME_SIDE}x{MIN_FRAME_SIDE} "
+            "(the region warp interpolates between pixels): check that these are the sequence's frames"
+        )
     if x >= W or y >= H or x + w <= 0 or y + h <= 0:
         raise InputError(
             f"the initial box {x:g},{y:g},{w:g},{h:g} lies outside the {W}x{H} frame"
@@ -59,3 +65,6 @@ def check_init_box(box, frame_shape) -> np.ndarray:
 #: An initial box may be at most this many times the frame's width and height (a target partly
 #: outside the frame is fine; a box of 1e308 pixels overflows the warp).
 MAX_BOX_FRAMES = 2.0
+
+#: Frames must be at least this many pixels on each side (the warp's bilinear interpolation needs 2).
+MIN_FRAME_SIDE = 2

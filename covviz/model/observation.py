@@ -292,7 +292,7 @@ class ObservationConfig:
 
 #: Each field of :class:`ObservationConfig`: its type and range (:mod:`covviz.config`).
 OBSERVATION_SPECS: dict[str, Spec] = {
-    "patch_size": Spec("int", 4, 256),
+    "patch_size": Spec("int", 4, 128),  # the cost grows as its square: 2000 took 90 s a frame
     "eps": Spec("float", 0, 1, lo_open=True),
     "gain_normalize": Spec("bool"),
     "grad_normalize": Spec("float", 0, 1),

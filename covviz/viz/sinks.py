@@ -28,7 +28,8 @@ from pathlib import Path
 
 import rerun as rr
 
-from covviz.errors import WriteError, free_space
+from covviz.errors import InputError, WriteError, free_space
+from covviz.viz.viewer import find_viewer
 
 __all__ = [
     "APPLICATION_ID",
@@ -39,6 +40,7 @@ __all__ = [
     "FLUSH_TIMEOUT",
     "attach_sinks",
     "close_stream",
+    "find_viewer",
     "new_recording",
     "recording_complete",
     "viewer_reachable",
@@ -129,7 +131,11 @@ def attach_sinks(
     if save is not None:
         sinks.append(rr.FileSink(str(save)))
     if spawn:
-        stream.spawn(port=port, connect=False)
+        exe = find_viewer()
+        if exe is None:
+            raise InputError("--spawn: no Rerun viewer found (not installed with rerun-sdk, beside covviz, nor in "
+                             "PATH); pip install rerun-sdk, or use --save and open the file later")
+        rr.spawn(port=port, connect=False, executable_path=exe, recording=stream)
         viewer = f"rerun+http://127.0.0.1:{port}/proxy"
         sinks.append(rr.GrpcSink(viewer))
     if connect:

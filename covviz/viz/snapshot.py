@@ -14,7 +14,9 @@ choose a frame (it shows the last one) and shows the start-up notifications.
 
 from __future__ import annotations
 
+import errno
 import glob
+import logging
 import os
 import shutil
 import signal
@@ -23,7 +25,10 @@ import subprocess
 import time
 from pathlib import Path
 
-from covviz.errors import InputError
+from covviz.errors import InputError, free_space
+from covviz.viz.viewer import find_viewer
+
+log = logging.getLogger("covviz")
 
 __all__ = [
     "SnapshotError",
@@ -59,22 +64,6 @@ def vulkan_available() -> bool:
     if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):
         return True
     return any(glob.glob(os.path.join(d, "*.json")) for d in VULKAN_ICD_DIRS)
-
-
-def find_viewer() -> str | None:
-    """Path of the native ``rerun`` viewer binary (not the Python wrapper script), or None."""
-    env = os.environ.get("RERUN_CLI_PATH")
-    if env and Path(env).is_file():
-        return env
-    try:
-        import rerun_cli
-
-        exe = Path(rerun_cli.__file__).with_name("rerun")
-        if exe.is_file():
-            return str(exe)
-    except ImportError:
-        pass
-    return shutil.which("rerun")
 
 
 def _free_port() -> int:
@@ -149,7 +138,20 @@ def snapshot_frames(
     """Several screenshots of one recording, ``(png, frame)`` each, from a single viewer launch.
 
     See :func:`snapshot` for the arguments; every frame is checked before the first shot.
+    A recording cut mid-message (a full disk) is shown up to the cut, from a
+    temporary copy of its whole messages (the viewer opens nothing of it as it is).
     """
+    from covviz.viz.readback import cut_note, readable_file
+
+    if not Path(recording).is_file():
+        raise SnapshotError(f"{Path(recording).resolve()}: no such recording")
+    with readable_file(Path(recording)) as (src, cut):
+        if cut is not None:
+            log.warning("%s", cut_note(Path(recording), cut))
+        return _snapshot_frames(src, shots, size, timeline, timeout, settle)
+
+
+def _snapshot_frames(recording, shots, size, timeline, timeout, settle) -> list[Path]:
     recording = Path(recording).resolve()
     outs = [Path(o).resolve() for o, _ in shots]
     if not recording.is_file():
@@ -166,6 +168,7 @@ def snapshot_frames(
         out.parent.mkdir(parents=True, exist_ok=True)
         if out.exists():
             out.unlink()
+    _check_room(outs, size)
 
     from rerun.experimental import ViewerClient
 
@@ -203,11 +206,11 @@ def snapshot_frames(
                 time.sleep(0.2)
         if client is None:
             raise SnapshotError(f"the headless viewer did not answer within {timeout:.0f} s")
-        client.open(str(recording))
-        state = client.get_state()
+        _viewer_call("open the recording", client.open, str(recording))
+        state = _viewer_call("report its state", client.get_state)
         while state.loading and time.monotonic() < deadline:
             time.sleep(0.2)
-            state = client.get_state()
+            state = _viewer_call("report its state", client.get_state)
         rec = next((r for r in state.recordings if r.store_id == state.active_recording), None)
         if rec is None:
             raise SnapshotError(f"{recording}: the viewer opened no recording from it")
@@ -223,13 +226,13 @@ def snapshot_frames(
         first = True
         for out, t in zip(outs, targets):
             if t is not None:
-                client.set_time(timeline, sequence=t, play_state="paused")
+                _viewer_call("go to the frame", client.set_time, timeline, sequence=t, play_state="paused")
             time.sleep(settle)
             if first:  # warms up the views (images decoded, plots laid out)
-                client.save_screenshot(str(out))
+                save_screenshot(client, out)
                 time.sleep(settle)
                 first = False
-            client.save_screenshot(str(out))
+            save_screenshot(client, out)
     finally:
         _stop(proc)
         if proc.stderr:
@@ -238,6 +241,61 @@ def snapshot_frames(
         if not out.is_file() or out.stat().st_size == 0:
             raise SnapshotError(f"the viewer wrote no screenshot to {out}")
     return outs
+
+
+#: Times a viewer call is tried when it times out (a busy machine: the viewer's gRPC deadline expired).
+VIEWER_CALL_TRIES = 3
+
+
+def _viewer_call(what: str, fn, *args, tries: int = VIEWER_CALL_TRIES, **kwargs):
+    """``fn(*args, **kwargs)`` on the viewer client, retried when its deadline expires; then one line."""
+    for attempt in range(tries):
+        try:
+            return fn(*args, **kwargs)
+        except Exception as exc:
+            if not _timed_out(exc):
+                raise
+            if attempt == tries - 1:
+                raise SnapshotError(
+                    f"the headless viewer did not {what} in time, {tries} tries (the machine is busy?); "
+                    "run the command again when it is quieter, or give a larger --timeout"
+                ) from None
+            time.sleep(1.0 + attempt)
+
+
+def _timed_out(exc: BaseException) -> bool:
+    return isinstance(exc, TimeoutError) or "deadline" in str(exc).lower()
+
+
+def save_screenshot(client, out: Path) -> None:
+    """``client.save_screenshot(out)``, with a full disk and a busy viewer each said in one line."""
+    try:
+        _viewer_call("take the screenshot", client.save_screenshot, str(out))
+    except SnapshotError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - the viewer reports a failed write as a ConnectionError
+        text = str(exc)
+        if "no space left" in text.lower() or getattr(exc, "errno", None) == errno.ENOSPC:
+            raise SnapshotError(f"no space left on the device while writing {out} ({free_space(out)}); "
+                                "free some space, or choose another --out") from None
+        raise SnapshotError(f"the viewer could not write {out}: {' '.join(text.split())[:200]}") from None
+
+
+#: Bytes a screenshot may take per pixel of the window: raw RGBA (its PNG of a 1600x900 window is 0.3-3 MB).
+SCREENSHOT_BYTES_PER_PIXEL = 4
+
+
+def _check_room(outs: list[Path], size: tuple[int, int]) -> None:
+    """Refuse before the viewer starts if the screenshots cannot fit on the disk."""
+    need = len(outs) * size[0] * size[1] * SCREENSHOT_BYTES_PER_PIXEL
+    for folder in {o.parent for o in outs}:
+        try:
+            free = shutil.disk_usage(folder).free
+        except OSError:
+            continue
+        if free < need:
+            raise SnapshotError(f"not enough free space for the screenshot in {folder}: about {need / 1e6:.0f} MB "
+                                f"needed, {free / 1e6:.1f} MB free; free some space, or choose another --out")
 
 
 def contact_sheet(images: list[Path], labels: list[str], out: str | Path, scale: float = 0.75) -> Path:
