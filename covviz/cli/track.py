@@ -113,11 +113,14 @@ def _print_diagnosis(found: dict | None) -> None:
     sus = found.get("suspects", [])
     if sus:
         kinds = sorted({sp["kind"] for sp in sus})
-        print(f"  {len(sus)} suspect frame(s) without ground truth ({', '.join(kinds)}); 'covviz events' lists them")
+        print(f"  {len(sus)} label-free suspect(s) ({', '.join(kinds)}): raised from the filter's own numbers, "
+              "without reading the ground truth; 'covviz events' lists them")
     labels = found.get("labels", {})
     off = {k: v for k, v in labels.items() if k != "ok" and v}
     if off:
-        print("  frames off track: " + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items()))
+        print("  frames off track over the whole run: "
+              + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items())
+              + (" (a loss's card counts those from its drift to the loss)" if found.get("diagnoses") else ""))
 
 def _recording_observers(
     args, seq, n_frames: int, stages: list, created: list[Path] | None = None
@@ -319,6 +322,11 @@ def _run_tracking(args, seq, trackers, replays, recorders, rrd, created) -> int:
             f"r_on_track {m['r_on_track']:.3f}   rms_on_track {m['rms_on_track']:.3f}   "
             f"mean IoU {m['mean_iou']:.3f}   ({m['n_skipped']} frames without ground truth skipped)"
         )
+        found = doc.get("diagnosis") or {}
+        if found.get("diagnoses") and m["r_on_track"] > 0.5:
+            print("  (r_on_track is the paper's centre-error rule: a frame is on track while the centre error is "
+                  "within the truth's size; LOST is the IoU rule, IoU < 0.1: a box of the wrong size or place "
+                  "can be both)")
         _print_diagnosis(doc.get("diagnosis"))
     print(f"results in {where}/  ({wall:.1f} s wall)")
     if rrd is not None and not code:

@@ -15,7 +15,7 @@ from pathlib import Path
 from covviz.errors import InputError
 from covviz.viz import paths as P
 
-__all__ = ["RecordingError", "last_frame", "read_events"]
+__all__ = ["RecordingError", "application_id", "last_frame", "read_events", "read_layout"]
 
 #: Fields of an event row, in the order ``covviz events`` prints them.
 FIELDS = ("tracker", "frame", "kind", "level", "cause", "text")
@@ -99,3 +99,28 @@ def last_frame(path: str | Path) -> int | None:
             if v:
                 last = max(v) if last is None else max(last, max(v))
     return last
+
+
+def read_layout(path: str | Path) -> dict | None:
+    """What the recording's blueprint was built from: ``trackers``, ``with_cloud``, ``with_particles``,
+    ``image_size`` (None for a recording without it: ``covviz mds``, or one from before it was logged)."""
+    out: dict = {}
+    for ch in _reader(path).stream():
+        if not ch.is_static or ch.entity_path.strip("/") != P.LAYOUT:
+            continue
+        rb = ch.to_record_batch()
+        for c in ("trackers", "with_cloud", "with_particles", "image_size"):
+            if c in rb.schema.names:
+                v = rb.column(c).to_pylist()[-1]
+                out[c] = [x for x in v if x != ""] if c != "image_size" else v
+    return out if "trackers" in out else None
+
+
+def application_id(path: str | Path) -> str | None:
+    """The application id of the recording in ``path`` (a blueprint for it must carry the same)."""
+    try:
+        for rec in _reader(path).recordings():
+            return str(rec.application_id)
+    except Exception:  # noqa: BLE001 - older files, foreign files
+        return None
+    return None

@@ -24,14 +24,17 @@ import time
 from pathlib import Path
 
 from covviz.errors import InputError
+from covviz.viz.readback import read_layout
 
 __all__ = [
     "SnapshotError",
     "contact_sheet",
     "find_viewer",
+    "focus_blueprint",
     "parse_size",
     "snapshot",
     "snapshot_frames",
+    "tracker_names",
     "vulkan_available",
 ]
 
@@ -100,6 +103,54 @@ def _stop(proc: subprocess.Popen) -> None:
         proc.wait(timeout=5)
 
 
+def tracker_names(recording: str | Path) -> list[str]:
+    """The trackers of a tracking recording (``[]`` for one without a layout)."""
+    layout = read_layout(recording)
+    return list(layout["trackers"]) if layout else []
+
+
+def focus_blueprint(recording: str | Path, focus: str):
+    """The recording's layout with ``focus``'s panels open; :class:`SnapshotError` if it has no such tracker."""
+    from covviz.viz.blueprint import layout_blueprint
+
+    layout = read_layout(recording)
+    if layout is None:
+        raise SnapshotError(f"{recording}: no layout in the recording (not a 'covviz track' recording, or an old one)")
+    if focus not in layout["trackers"]:
+        raise SnapshotError(f"--tracker {focus}: the recording's trackers are {', '.join(layout['trackers'])}")
+    return layout_blueprint(layout, focus=focus)
+
+
+#: The frame view's per-tracker likelihood overlays (one shown at a time: the focused tracker's).
+_LIKELIHOOD_LEAVES = ("likelihood", "likelihood_peak", "likelihood_region", "likelihood_bar", "likelihood_bar_labels")
+
+
+def _apply_focus(client, layout: dict, focus: str) -> None:
+    """In the viewer's blueprint, open ``focus``'s tab of per-tracker panels and show its likelihood map only.
+
+    Edits the blueprint the viewer holds (read with ``get_blueprint``, written back whole with
+    ``set_blueprint``): the Tabs holding the per-tracker containers (named after their tracker) get
+    ``focus``'s as the active tab; the frame view's overrides show ``focus``'s likelihood overlay and hide
+    the others'.
+    """
+    d = dict(client.get_blueprint().blueprint)
+    mine = [k for k, v in d.items() if v.get("ContainerBlueprint", {}).get("display_name") == focus
+            and v["ContainerBlueprint"].get("container_kind") == "Vertical"]
+    for v in d.values():
+        cb = v.get("ContainerBlueprint")
+        if cb and cb.get("container_kind") == "Tabs":
+            for key in mine:
+                if key in cb.get("contents", []):
+                    cb["active_tab"] = key
+    marker = "/ViewContents/overrides/trackers/"
+    views = {k.split("/ViewContents/")[0] for k in d if marker in k and "/video/" in k}
+    for view in views:
+        for name in layout.get("with_cloud", []):
+            for leaf in _LIKELIHOOD_LEAVES:
+                d[f"{view}{marker}{name}/video/{leaf}/visualizers"] = {"EntityBehavior": {"visible": name == focus}}
+    client.set_blueprint(d, of="recording")
+
+
 def snapshot(
     recording: str | Path,
     out: str | Path,
@@ -108,6 +159,7 @@ def snapshot(
     timeline: str = "frame",
     timeout: float = 60.0,
     settle: float = 1.0,
+    focus: str | None = None,
 ) -> Path:
     """Render ``recording`` in the headless Rerun viewer at ``frame`` and save a PNG.
 
@@ -128,6 +180,11 @@ def snapshot(
         Seconds to wait for the viewer to start and load.
     settle : float
         Seconds to let the views settle before the screenshot.
+    focus : str, optional
+        A tracker of the recording whose panels to show (its tab of the
+        per-tracker panels opened): the recording's layout is rebuilt with
+        that focus (:func:`covviz.viz.blueprint.layout_blueprint`) and opened
+        after it.
 
     Raises
     ------
@@ -135,7 +192,7 @@ def snapshot(
         No Vulkan driver or viewer binary, the viewer did not start, or no
         screenshot was written.
     """
-    return snapshot_frames(recording, [(out, frame)], size, timeline, timeout, settle)[0]
+    return snapshot_frames(recording, [(out, frame)], size, timeline, timeout, settle, focus=focus)[0]
 
 
 def snapshot_frames(
@@ -145,11 +202,16 @@ def snapshot_frames(
     timeline: str = "frame",
     timeout: float = 60.0,
     settle: float = 1.0,
+    focus: str | None = None,
 ) -> list[Path]:
     """Several screenshots of one recording, ``(png, frame)`` each, from a single viewer launch.
 
     See :func:`snapshot` for the arguments; every frame is checked before the first shot.
     """
+    layout = None
+    if focus is not None:
+        focus_blueprint(recording, focus)  # checks the name
+        layout = read_layout(recording)
     recording = Path(recording).resolve()
     outs = [Path(o).resolve() for o, _ in shots]
     if not recording.is_file():
@@ -220,6 +282,9 @@ def snapshot_frames(
         for t in targets:
             if tl is not None and not tl.start <= t <= tl.end:
                 raise SnapshotError(f"frame {t} is outside the recording's frames {tl.start}..{tl.end}")
+        if layout is not None:
+            time.sleep(settle)  # the recording's own blueprint first, then its focus changed
+            _apply_focus(client, layout, focus)
         first = True
         for out, t in zip(outs, targets):
             if t is not None:
