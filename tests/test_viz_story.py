@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import itertools
 
 import pytest
 from viz_helpers import read_recording
@@ -64,7 +65,7 @@ def test_the_recording_holds_the_state_lanes(two):
         changes = {f: v[-1] for f, v in t[p.story_lane("track")]["StateChange:state"].items()}
         frames = sorted(changes)
         assert frames[0] == 1 and changes[1] == ["ok"]
-        assert all(changes[a] != changes[b] for a, b in zip(frames, frames[1:]))
+        assert all(changes[a] != changes[b] for a, b in itertools.pairwise(frames))
         assert {v[0] for v in changes.values()} <= set(story.TRACK_STATES)
     # The identity tracker stays where it started while the target moves: off track, then lost.
     ident = {v[-1][0] for v in t[P.TrackerPaths("identity").story_lane("track")]["StateChange:state"].values()}
@@ -128,7 +129,7 @@ def test_the_layout_in_a_two_tracker_recording(two):
 
 
 def test_snapshot_tracker_must_be_one_of_the_recording(two, capsys):
-    code, out, err = run_main(["snapshot", str(two["path"]), "--tracker", "ipca", "--out",
+    code, _, err = run_main(["snapshot", str(two["path"]), "--tracker", "ipca", "--out",
                                str(two["path"].with_suffix(".png"))])
     assert code == 2 and "--tracker ipca: the recording's trackers are manifold, identity" in err
     assert not two["path"].with_suffix(".png").exists()

@@ -325,8 +325,8 @@ def _run_tracking(args, seq, trackers, replays, recorders, rrd, created) -> int:
         found = doc.get("diagnosis") or {}
         if found.get("diagnoses") and m["r_on_track"] > 0.5:
             print("  (r_on_track is the paper's centre-error rule: a frame is on track while the centre error is "
-                  "within the truth's size; LOST is the IoU rule, IoU < 0.1: a box of the wrong size or place "
-                  "can be both)")
+                  "within the truth's size; LOST is the IoU rule, IoU < 0.1: a box far too large or small "
+                  "keeps its centre on the target and still loses it)")
         _print_diagnosis(doc.get("diagnosis"))
     print(f"results in {where}/  ({wall:.1f} s wall)")
     if rrd is not None and not code:

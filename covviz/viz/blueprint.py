@@ -29,6 +29,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import rerun.blueprint as rrb
+import rerun.blueprint.encodings as rrbe
 
 from covviz.viz import paths as P
 
@@ -194,7 +195,19 @@ def build_blueprint(
         middle = rrb.Tabs(*middles, active_tab=active)
 
     docs = rrb.Tabs(
-        rrb.TextLogView(name="Events", origin=f"/{P.TRACKERS}", contents=[f"+ /{p.events}" for p in tp]),
+        rrb.TextLogView(
+            name="Events",
+            origin=f"/{P.TRACKERS}",
+            contents=[f"+ /{p.events}" for p in tp],
+            # The entity path is the tracker's, which the headline already names: its column goes, so
+            # the headline (kind, frame, cause, verdict) has the width.
+            columns=rrb.TextLogColumns(
+                timeline_columns=[rrbe.TimelineColumn(P.FRAME_TIMELINE), rrbe.TimelineColumn(P.TIME_TIMELINE,
+                                                                                             visible=False)],
+                text_log_columns=[rrbe.TextLogColumn("LogLevel"), rrbe.TextLogColumn("Body"),
+                                  rrbe.TextLogColumn("EntityPath", visible=False)],
+            ),
+        ),
         rrb.TextDocumentView(name="How to read this", origin=f"/{P.DESCRIPTION}"),
         rrb.TextDocumentView(name="Summary", origin=f"/{P.SUMMARY}"),
         rrb.TextDocumentView(name="Config", origin=f"/{P.CONFIG}"),

@@ -27,6 +27,7 @@ from collections import deque
 from collections.abc import Sequence as Seq
 from dataclasses import asdict, dataclass, field
 
+import cv2
 import numpy as np
 import rerun as rr
 
@@ -904,12 +905,20 @@ class RerunLogger(Observer):
         span = float(max(-finite.min(), 1.0)) if finite.size else LIKELIHOOD_RANGE_NATS
         # Heat cells as overlapping discs in the frame's own pixels (no transform to go wrong): one per
         # position of the map, coloured by its log-likelihood on a square-root scale of the map's range.
-        cw, ch = (x1 - x0) / g, (y1 - y0) / g
-        gx, gy = np.meshgrid(x0 + (np.arange(g) + 0.5) * cw, y0 + (np.arange(g) + 0.5) * ch)
-        shown = -span * np.sqrt(np.clip(-np.nan_to_num(L, nan=-span), 0.0, span) / span)
+        # Square cells (a tall or wide region gets more of them, the map interpolated bilinearly), so the
+        # discs cover the region without spilling over its outline.
+        cell = min(x1 - x0, y1 - y0) / g
+        nx = int(np.clip(round((x1 - x0) / cell), 2, 4 * g))
+        ny = int(np.clip(round((y1 - y0) / cell), 2, 4 * g))
+        cw, ch = (x1 - x0) / nx, (y1 - y0) / ny
+        gx, gy = np.meshgrid(x0 + (np.arange(nx) + 0.5) * cw, y0 + (np.arange(ny) + 0.5) * ch)
+        Lf = np.nan_to_num(L, nan=-span, neginf=-span)
+        if (ny, nx) != Lf.shape:
+            Lf = cv2.resize(Lf.astype(np.float32), (nx, ny), interpolation=cv2.INTER_LINEAR).astype(np.float64)
+        shown = -span * np.sqrt(np.clip(-Lf, 0.0, span) / span)
         rgba = likelihood_rgba(shown, span, floor_alpha=60).reshape(-1, 4)
         rgba[:, 3] = (0.55 * rgba[:, 3]).astype(np.uint8)
-        rec.log(p.likelihood, rr.Points2D(np.stack([gx.ravel(), gy.ravel()], 1), radii=[0.62 * max(cw, ch)],
+        rec.log(p.likelihood, rr.Points2D(np.stack([gx.ravel(), gy.ravel()], 1), radii=[0.6 * max(cw, ch)],
                                           colors=rgba, draw_order=5.0))
         # The searched region's outline and, above it, the colour bar: best (bright) .. span nats below (dark).
         rec.log(p.likelihood_region, rr.LineStrips2D([[(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)]],

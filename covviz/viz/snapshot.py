@@ -142,6 +142,9 @@ def _apply_focus(client, layout: dict, focus: str) -> None:
             for key in mine:
                 if key in cb.get("contents", []):
                     cb["active_tab"] = key
+    if focus not in layout.get("with_cloud", []):
+        client.set_blueprint(d, of="recording")  # no map of its own: the recording's map stays
+        return
     marker = "/ViewContents/overrides/trackers/"
     views = {k.split("/ViewContents/")[0] for k in d if marker in k and "/video/" in k}
     for view in views:
