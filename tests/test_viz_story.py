@@ -10,13 +10,17 @@ import contextlib
 import io
 import itertools
 
+from dataclasses import replace
+
+import numpy as np
 import pytest
 from viz_helpers import read_recording
 
 from covviz import cli
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
+from covviz.diagnosis.counterfactual import Outcome, Replay
 from covviz.diagnosis.drift import Diagnoser
-from covviz.runner import Pipeline, run_many
+from covviz.runner import Observer, Pipeline, run_many
 from covviz.trackers.base import IdentityTracker
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz import paths as P
@@ -36,6 +40,22 @@ def run_main(argv):
     return code, out.getvalue(), err.getvalue()
 
 
+class FakeReplays(Observer):
+    """Stands in for the counterfactual replays: a verdict for every loss of the diagnosis, at the end."""
+
+    def on_end(self, results, found):
+        out = []
+        for j, _ in enumerate(results):
+            rep = {}
+            for d in found.diagnosis.report(j)["diagnoses"]:
+                boxes = np.zeros((3, 4))
+                outcomes = {"none": Outcome(False, 0.0, 0, boxes, True), "search": Outcome(True, 0.8, 3, boxes)}
+                rep[d["lost_at"]] = Replay(d["lost_at"], d["drift_began"], d["lost_at"] - 2, d["lost_at"] + 2, 2,
+                                           outcomes, "search", ("search",), d["drift_began"])
+            out.append(rep)
+        return replace(found, counterfactual=tuple(out))
+
+
 @pytest.fixture(scope="module")
 def two(tmp_path_factory):
     """A recording of two trackers: the manifold tracker and the identity tracker (which loses the target)."""
@@ -45,7 +65,7 @@ def two(tmp_path_factory):
     attach_sinks(stream, save=path)
     cfg = LoggerConfig(mds_every=10, seed=0)
     trackers = [ManifoldTracker(ManifoldConfig(n_particles=40), rng=1), IdentityTracker()]
-    run_many(trackers, seq, [Pipeline([Diagnoser(cfg.diagnosis), RerunLogger(stream, cfg)])])
+    run_many(trackers, seq, [Pipeline([Diagnoser(cfg.diagnosis), FakeReplays(), RerunLogger(stream, cfg)])])
     temporal, static = read_recording(path)
     return {"path": path, "temporal": temporal, "static": static}
 
@@ -70,6 +90,18 @@ def test_the_recording_holds_the_state_lanes(two):
     # The identity tracker stays where it started while the target moves: off track, then lost.
     ident = {v[-1][0] for v in t[P.TrackerPaths("identity").story_lane("track")]["StateChange:state"].values()}
     assert "lost" in ident
+
+
+def test_the_verdict_lane_holds_each_loss_verdict_until_its_replay_ends(two):
+    t = two["temporal"]
+    p = P.TrackerPaths("identity")
+    lost = [f for f, v in t[p.story_lane("track")]["StateChange:state"].items() if v[-1] == ["lost"]]
+    verdict = {f: v[-1] for f, v in t[p.story_lane("verdict")]["StateChange:state"].items()}
+    assert verdict[lost[0]] == ["search"]
+    assert verdict[lost[0] + 3] == []  # a null state after the replay's last frame: a gap in the lane
+    rows = [r[0] for v in t[p.events]["TextLog:text"].values() for r in v if "verdict" in r[0]]
+    assert rows and rows[0].split("\n")[0].startswith(f"[identity] LOST {lost[0]} · ")
+    assert "verdict SEARCH" in rows[0].split("\n")[0]
 
 
 def test_events_rows_lead_with_kind_and_frame_in_80_characters(two):
