@@ -9,7 +9,6 @@ from __future__ import annotations
 import contextlib
 import io
 import itertools
-
 from dataclasses import replace
 
 import numpy as np
