@@ -771,6 +771,8 @@ class RerunLogger(Observer):
     def _redo_around(self, s: _TrackerState, first: int, last: int) -> None:
         """The costly views of frames ``first..last`` (0-based indices) kept in memory, logged at their frames."""
         here = self._recent[-1][0]
+        pending = list(s.clear_next)  # what this frame's own views need cleared on the next frame
+        s.clear_next = []
         for frame, records in list(self._recent):
             i = int(frame.index)
             if not first <= i <= last or i == int(here.index):
@@ -784,12 +786,14 @@ class RerunLogger(Observer):
             box = checked(record.box, (4,), "box", problems)
             est_t = checked(record.estimate_template, (-1, -1), "estimate_template", problems)
             self._log_diagnostics(s, frame, record, box, gt, est_t, {}, problems, dense=True)
-            # The views of a past frame show on that frame only.
-            nxt = frame_number(i) + 1
-            self.stream.set_time(P.FRAME_TIMELINE, sequence=nxt)
-            for path in s.clear_next:
-                self.stream.log(path, rr.Clear(recursive=False))
+            # The views of a past frame show on that frame only: cleared on the next one, unless that
+            # frame's own views are already logged (a clear logged after them would wipe them out).
+            if i + 1 not in s.drawn:
+                self.stream.set_time(P.FRAME_TIMELINE, sequence=frame_number(i) + 1)
+                for path in s.clear_next:
+                    self.stream.log(path, rr.Clear(recursive=False))
             s.clear_next = []
+        s.clear_next = pending
         self._set_time(here)
 
     def _log_events(self, s: _TrackerState, frame, found: FrameNews) -> None:
