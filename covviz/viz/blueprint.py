@@ -199,12 +199,13 @@ def build_blueprint(
             name="Events",
             origin=f"/{P.TRACKERS}",
             contents=[f"+ /{p.events}" for p in tp],
-            # The entity path is the tracker's, which the headline already names: its column goes, so
-            # the headline (kind, frame, cause, verdict) has the width.
+            # The entity path is the tracker's, which the headline already names, and the level is the
+            # headline's kind (LOST, DRIFT, SUSPECT ...): their columns go, so the headline (kind, frame,
+            # cause, verdict) has the width.
             columns=rrb.TextLogColumns(
                 timeline_columns=[rrbe.TimelineColumn(P.FRAME_TIMELINE), rrbe.TimelineColumn(P.TIME_TIMELINE,
                                                                                              visible=False)],
-                text_log_columns=[rrbe.TextLogColumn("LogLevel"), rrbe.TextLogColumn("Body"),
+                text_log_columns=[rrbe.TextLogColumn("Body"), rrbe.TextLogColumn("LogLevel", visible=False),
                                   rrbe.TextLogColumn("EntityPath", visible=False)],
             ),
         ),
