@@ -142,7 +142,7 @@ def test_bench_writes_every_result_manifest_and_report(benched, root):
     assert manifest["covviz"] and manifest["particles"] == PARTICLES
 
     md = (benched / "report.md").read_text()
-    assert "## Overall" in md and "### alpha (15 frames)" in md and "### beta (12 frames)" in md
+    assert "## Overall" in md and "### alpha (15 frames tracked)" in md and "### beta (12 frames tracked)" in md
     overall = md.split("## Overall")[1].split("##")[0]
     assert (
         "| tracker | runs | success AUC ↑ | P@20 ↑ | r_on_track ↑ | rms_on_track ↓ | fps | failed frames |"

@@ -302,7 +302,9 @@ def test_costly_diagnostics_only_on_their_frames(run):
     mds_frames = {i + 1 for i in range(N_FRAMES) if i % MDS_EVERY == 0}  # frame numbers
     assert set(t[p.cloud_kind("target")]["Points2D:positions"]) == mds_frames
     assert set(t[p.cloud_kind("top")]["Points2D:positions"]) == mds_frames - {1}
-    assert set(t[p.likelihood]["Image:buffer"]) == mds_frames
+    assert set(t[p.likelihood]["Points2D:positions"]) == mds_frames
+    # The slices on every frame where the map is.
+    assert set(t[f"{p.slices}/estimate"]["LineStrips2D:strips"]) == mds_frames
     # ... and cleared on the next frame, so a stale map never sits on a later frame.
     assert {f + 1 for f in mds_frames if f < N_FRAMES} <= set(t[p.likelihood]["Clear:is_recursive"])
     top = last(t, p.cloud_kind("top"), "Points2D:positions")

@@ -13,6 +13,7 @@ examples:
   covviz snapshot run.rrd --size 1920x1080            # the last frame
   covviz events run.rrd                               # which events are there (their numbers K)
   covviz snapshot run.rrd --event 3 --offsets -5,0,5 --out sheet.png   # before / at / after event 3
+  covviz snapshot two.rrd --frame 80 --tracker ipca   # ipca's panels (a recording of manifold,ipca)
   covviz snapshot recordings/Car4-mds.rrd --out mds.png                # an 'mds' recording (static)
 
 Frames are 1-based, as on the recording's timeline and in the events (frame 1 is the first image).
@@ -45,6 +46,9 @@ def add_snapshot_parser(sub) -> argparse.ArgumentParser:
                        help="event K of 'covviz events REC.rrd' (its frame, plus --offsets)")
     p.add_argument("--offsets", type=offset_list, default=(-5, 0, 5), metavar="A,B,…",
                    help="with --event: frames relative to the event's (default -5,0,5)")
+    p.add_argument("--tracker", metavar="NAME",
+                   help="whose panels to show (zoom, slices, cloud, heatmaps, terms) in a recording of several "
+                   "trackers; with --event: default the event's tracker")
     p.add_argument("--out", type=Path, default=Path("shot.png"), help="PNG to write (default shot.png)")
     p.add_argument("--size", default="1600x900", help="window size WxH in points (default 1600x900)")
     p.add_argument("--timeline", default="frame", help="timeline of --frame (default 'frame')")
@@ -56,7 +60,14 @@ def cmd_snapshot(args) -> int:
     import tempfile
 
     from covviz.viz.readback import last_frame, read_events
-    from covviz.viz.snapshot import SnapshotError, contact_sheet, parse_size, snapshot, snapshot_frames
+    from covviz.viz.snapshot import (
+        SnapshotError,
+        contact_sheet,
+        focus_blueprint,
+        parse_size,
+        snapshot,
+        snapshot_frames,
+    )
 
     if not args.recording.is_file():
         raise UsageError(f"{args.recording}: no such recording")
@@ -64,9 +75,11 @@ def cmd_snapshot(args) -> int:
     created: list[Path] = []
     _check_png_path(args.out, created)
     try:
+        if args.tracker is not None:
+            focus_blueprint(args.recording, args.tracker)  # a wrong name: one line, before the viewer starts
         if args.event is None:
             out = snapshot(args.recording, args.out, frame=args.frame, size=size, timeline=args.timeline,
-                           timeout=args.timeout)
+                           timeout=args.timeout, focus=args.tracker)
             print(f"screenshot: {out}")
             return 0
         events = read_events(args.recording)
@@ -80,7 +93,13 @@ def cmd_snapshot(args) -> int:
         frames = sorted({min(max(1, ev["frame"] + k), last) for k in args.offsets})
         with tempfile.TemporaryDirectory() as tmp:
             shots = [(Path(tmp) / f"f{f}.png", f) for f in frames]
-            snapshot_frames(args.recording, shots, size, args.timeline, args.timeout)
+            # The event's tracker's panels, unless --tracker says whose.
+            focus = args.tracker or ev["tracker"]
+            try:
+                focus_blueprint(args.recording, focus)
+            except SnapshotError:
+                focus = None  # a recording without a layout: its own blueprint
+            snapshot_frames(args.recording, shots, size, args.timeline, args.timeout, focus=focus)
             labels = [f"frame {f} ({f - ev['frame']:+d} from event {args.event}: {ev['kind']} "
                       f"{ev['cause'].replace('_', ' ')}) - {ev['tracker']}" for f in frames]
             out = contact_sheet([p for p, _ in shots], labels, args.out)

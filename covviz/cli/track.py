@@ -121,7 +121,9 @@ def _print_diagnosis(found: dict | None) -> None:
     labels = found.get("labels", {})
     off = {k: v for k, v in labels.items() if k != "ok" and v}
     if off:
-        print("  frames off track: " + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items()))
+        print("  frames off track over the whole run: "
+              + ", ".join(f"{v} {k} failure{'s' * (v != 1)}" for k, v in off.items())
+              + (" (a loss's card counts those from its drift to the loss)" if found.get("diagnoses") else ""))
 
 def _print_alarms(found: dict | None, every: bool) -> None:
     """Issue 21: the label-free drift alarms, one line each without ground truth (else their count)."""
@@ -384,6 +386,11 @@ def _run_tracking(args, seq, trackers, replays, recorders, rrd, created, watch=N
             f"r_on_track {m['r_on_track']:.3f}   rms_on_track {m['rms_on_track']:.3f}   "
             f"mean IoU {m['mean_iou']:.3f}   ({m['n_skipped']} frames without ground truth skipped)"
         )
+        found = doc.get("diagnosis") or {}
+        if found.get("diagnoses") and m["r_on_track"] > 0.5:
+            print("  (r_on_track is the paper's centre-error rule: a frame is on track while the centre error is "
+                  "within the truth's size; LOST is the IoU rule, IoU < 0.1: a box far too large or small "
+                  "keeps its centre on the target and still loses it)")
         _print_diagnosis(doc.get("diagnosis"))
         _print_alarms(doc.get("diagnosis"), every=False)
     print(f"results in {where}/  ({wall:.1f} s wall)")

@@ -735,7 +735,7 @@ def _card(cause, also, lost_at, drift_began, ev, labels, last: FrameEvidence) ->
     fails = ", ".join(f"{v} {k}" for k, v in labels.items() if v) or "none labelled"
     s = (
         f"LOST at frame {lost_at} (drift began at {drift_began}): {cause.replace('_', ' ').upper()} - {why}. "
-        f"Frames off track: {fails}."
+        f"Frames off track from the drift to the loss: {fails}."
     )
     if also:
         s += " Also held (by strength): " + ", ".join(

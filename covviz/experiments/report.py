@@ -359,6 +359,20 @@ class Summary:
     suspects: dict = field(default_factory=dict)
 
 
+def frames_tracked(summary: Summary, sequence: str) -> str:
+    """``"80 of 140 frames tracked"`` (a bench with ``--max-frames``), or ``"140 frames tracked"``.
+
+    The sequence's length comes from the manifest; the frames tracked from the runs themselves (the most
+    any run of that sequence tracked), so a header never claims frames that no tracker saw.
+    """
+    total = summary.seq_frames.get(sequence)
+    done = [r.n_frames for r in summary.runs if r.sequence == sequence and r.n_frames]
+    if not done:
+        return f"{total if total is not None else '?'} frames, none tracked yet"
+    n = max(done)
+    return f"{n} of {total} frames tracked" if total is not None and n < total else f"{n} frames tracked"
+
+
 def summarize(results_dir: str | Path) -> Summary:
     """Aggregate the results of a bench folder: per sequence (over seeds) and overall (per seed, then over seeds)."""
     d = Path(results_dir)
@@ -648,7 +662,7 @@ def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
         L.append(f"| {s} | {seq_frames.get(s, '?')} | " + " | ".join(cells) + " |")
     L += ["", "## Per sequence", ""]
     for s in sequences:
-        L += [f"### {s} ({seq_frames.get(s, '?')} frames)", ""]
+        L += [f"### {s} ({frames_tracked(summary, s)})", ""]
         L += _table(per_seq[s]) if per_seq[s] else ["No results yet."]
         L.append("")
 
@@ -912,6 +926,6 @@ def render_latex(summary: Summary) -> str:
           r"\label{tab:covviz-auc}", r"\end{table}", ""]
     for s in summary.sequences:
         if summary.per_sequence.get(s):
-            L += _latex_table(summary.per_sequence[s], f"{_tex(s)} ({summary.seq_frames.get(s, '?')} frames).",
+            L += _latex_table(summary.per_sequence[s], f"{_tex(s)} ({frames_tracked(summary, s)}).",
                               f"tab:covviz-{''.join(c if c.isalnum() else '-' for c in s)}")
     return "\n".join(L)

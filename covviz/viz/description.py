@@ -29,14 +29,23 @@ def viewer_safe(text: str) -> str:
 DESCRIPTION = """\
 # covviz: why the tracker holds on, or drifts
 
-Start at **Events** (right): every loss of track has a **diagnosis** - its cause, the numbers
-behind it, and the frames to look at. Scrub the **frame** timeline (bottom bar) to a frame
+Start at the **story strip** (top left): per tracker, a lane of its frames - **on track**, a
+**model** / **search** / **estimate** failure, **lost** - a lane of the replays' **verdicts**
+(the smallest fix that keeps the track) and a lane for label-free **alarms**; click a band to go
+to its frame. Then **Events** (right): every row leads with its kind, frame and cause
+(`LOST 84 · OCCLUSION · drift began 71`); expand it for the full diagnosis - the numbers behind
+it, and the frames to look at. Scrub the **frame** timeline (bottom bar) to a frame
 number; frames are numbered from 1 (`img/0001.jpg`), as in the events. Each tracker lives under
 `trackers/<name>/`; the frame and the ground truth under `video/`.
 
 ## Events and diagnoses
 Losses (IoU < 0.1), the frame each **drift began**, recoveries and resampling storms come from
-the ground truth and the weights. Each loss is read against the target's look before the drift
+the ground truth and the weights. A **storm** is ESS/N < 0.05 on 3 frames while the IoU falls
+below 0.5 (without ground truth: 30 frames): peaked weights on a run that stays on track are a
+sharp likelihood, not a storm, so a calm run lists none. A loss's card counts its off-track
+frames from its drift to the loss; the story strip shows them over the whole run. The paper's
+`r_on_track` (centre error within the truth's size) can be high beside a LOST (the IoU rule):
+a box of the wrong size keeps its centre on the target. Each loss is read against the target's look before the drift
 and named from a fixed vocabulary, the first rule that holds: **fast motion** (the truth jumped
 out of the particles' reach), **scale** (the centre held, the size went wrong), **illumination**
 (part of the target became much darker or brighter), **distractor** (the target still looks as
@@ -51,21 +60,24 @@ threshold, with the signals that drove it. The older **suspects** (weights colla
 distance leaving its running range, a second mode, the scale running away) are still listed.
 Thresholds: `config`, `diagnosis`.
 
-## Frame · top particles · estimate · ground truth
+## Frame
 * **red box**: ground truth. **Coloured box** (yellow for `manifold`): the estimate as scored;
-  the thin outline of the same colour is the estimated rotated region.
+  the thin outline of the same colour is the estimated rotated region. With several trackers,
+  each one's name sits by its own corner of its box.
 * **bold green outlines**: the top 10 particles (hover one: its weight, its distance, the
   distance it was weighed by, its four quadrant distances and each term of the likelihood,
   weighted: `d_eff² = distance² + the sum of term_*`). **Dots**: particle centres, sized
   by weight. All particles' outlines, coloured by weight, are one toggle away (the eye of
   `particles` in this view).
-* **Likelihood map** (every *k*-th frame and on every frame around an event): the
-  log-likelihood of the estimate's template at positions around the estimate, exactly as the
-  particles are weighed, from 20 nats below its best (transparent) to the best (bright); the
-  white dot is the best match. *A bright blob away from the target: the particles will go there.*
+* **Likelihood map** (every *k*-th frame and on every frame around an event): a heat overlay of
+  the log-likelihood of the estimate's template over the searched region (orange outline) around
+  the estimate, exactly as the particles are weighed, on a square-root scale from the map's worst
+  (dark) to its best (bright); the colour bar above the region gives its range in nats, and the
+  thin white ring is the best match (it does not hide the target). *Bright away from the target:
+  the particles will go there.* With several trackers, the open tracker's map.
 * **Blue outlines**: the background regions of the template cloud's picture.
 
-## Plots (no legend box: hover a curve for its name; each tracker has its colour)
+## Plots (short titles, the key in a corner of each plot; each tracker has its own colour)
 * **IoU** with the truth (bold) and the **particles' best IoU** (thin: did any particle reach the
   truth?); markers **x** drift began, **▼** lost, **▲** recovered, **\\*** suspect.
 * **Why off track**: the likelihood distance `d_eff` at the **truth** (bright) and at the
@@ -83,29 +95,30 @@ Thresholds: `config`, `diagnosis`.
   background region) and the **stress-1** of the cloud's MDS picture (0.1 fair, 0.2 poor: do not
   read a poor picture as a map).
 
-## Zoom · likelihood slices · template cloud (middle)
+## Per-tracker panels (middle: one tab per tracker with templates)
 * **Zoom**: the 32x32 patches the model samples at the estimate, the truth and the initial box.
 * **Slices**: `d_eff` of the estimate's template along scale (x0.6 .. x1.67) and rotation
-  (-20 .. +20 degrees) about the estimate's centre (yellow) and the truth's (red); lower is
-  preferred, the vertical line is the pose's own. *Flat across scale: the likelihood cannot tell
+  (-20 .. +20 degrees) about the estimate's centre (its tracker's colour) and the truth's (red),
+  drawn on the frames of the likelihood map; lower is preferred, the vertical line is the pose's
+  own. *Flat across scale: the likelihood cannot tell
   the size.*
 * **Template cloud** (MDS of Riemannian distances): green generated templates (bright: top 10),
   red the target, white the initial template, yellow the estimate's template; with the blue
   background in the second tab.
 
-## Heatmaps · timings (right, below)
-The estimate's template `logm(C)`, the descriptor observed at the estimate `logm(C*)` and their
+* **Heatmaps** (a tab under the cloud): the estimate's template `logm(C)`, the descriptor observed at the estimate `logm(C*)` and their
 difference, on fixed colour scales (the bars below them); rows and columns are the 9 features.
-**Likelihood terms** (a tab, trackers whose likelihood has terms beyond `d(C, C*)`): each part
+* **Likelihood terms** (the next tab, trackers whose likelihood has terms beyond `d(C, C*)`): each part
 of `d_eff²` (`descriptor` = `d²`, `quadrants`, `colour`) as its **share** of what the weighted
 particles were weighed by (bold; the shares sum to 1) and the **weight it moved** (thin: the total
 variation between the weights and the weights without that part; 0 = it changed nothing, near 1 =
 it alone decided who carries the weight). *A term whose moved weight jumps as the IoU drops is the
 one the failure came from.*
-**Timings**: milliseconds per stage of the update, and the recorder's own time.
+**Timings** (right, below the events): milliseconds per stage of the update, and the recorder's own time.
 
 ## Reading a drift
-1. In **Events**, read the diagnosis of the loss; click its `drift began` line to go there.
+1. In the **story strip**, find where the lane turns from on track to a failure; in **Events**,
+   read the loss's row (its cause, its verdict) and expand it; click its `drift began` line.
 2. **Why off track**: model failure (fix the likelihood) or search failure (fix the dynamics)?
 3. **Zoom** and **slices**: does the truth still look like the initial box? Is the curve flat?
 4. Step forward: watch the top particles leave the red box, and ESS/N collapse.

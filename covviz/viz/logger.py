@@ -26,6 +26,7 @@ from collections import deque
 from collections.abc import Sequence as Seq
 from dataclasses import asdict, dataclass, field
 
+import cv2
 import numpy as np
 import rerun as rr
 
@@ -42,7 +43,7 @@ from covviz.runner import Findings, Observer, Pipeline, RunStart
 from covviz.threads import limit_threads
 from covviz.trackers.base import TrackerInfo
 from covviz.viz import paths as P
-from covviz.viz import why
+from covviz.viz import story, why
 from covviz.viz.blueprint import build_blueprint
 from covviz.viz.checks import checked, closed_strips, jpeg_bytes
 from covviz.viz.defaults import MDS_EVERY
@@ -59,6 +60,7 @@ from covviz.viz.palette import (
     BACKGROUND_COLOR,
     GT_COLOR,
     INITIAL_COLOR,
+    LIKELIHOOD_RANGE_NATS,
     LUT,
     SERIES_COLORS,
     TEMPLATE_COLOR,
@@ -209,6 +211,9 @@ class _TrackerState:
         self.stages_seen: set[str] = set()
         self.terms_seen: set[str] = set()
         self.warned: set[str] = set()
+        self.prefix = ""  # before series names: the tracker's name when the recording has several
+        self.lost = False  # between a loss and its recovery (the story strip's "lost")
+        self.story_state: str | None = None
 
 
 def term_contributions(record: FrameRecord, n: int, problems: list | None = None) -> dict[str, np.ndarray]:
@@ -325,15 +330,23 @@ class RerunLogger(Observer):
         with_cloud = [s.name for s in self._states if s.info.model is not None]
         with_particles = [s.name for s in self._states if s.info.particles]
         # Several particle trackers: the second and later get their own colour ramp and series colours.
+        # Several trackers: each one's curves in shades of its own colour (a colour of its own everywhere);
+        # the second and later particle trackers get their own colour ramp.
         for k, s in enumerate(st for st in self._states if st.name in with_particles):
             if k > 0:
                 s.lut = weight_lut(hi=s.color)
+        if len(self._states) > 1:
+            for s in self._states:
+                s.prefix = f"{s.name} "
                 s.series_colors = {
-                    key: tuple(int(0.4 * a + 0.6 * b) for a, b in zip(col[:3], s.color))
+                    key: tuple(int(0.3 * a + 0.7 * b) for a, b in zip(col[:3], s.color))
                     for key, col in SERIES_COLORS.items()
                 }
         # The blueprint goes out with the first frame, when the image size is known.
         self._blueprint_args = (names, with_cloud, with_particles)
+        colours = [int.from_bytes(bytes([*s.color[:3], 255]), "big") for s in self._states]
+        rec.log(P.LAYOUT, rr.AnyValues(trackers=names, with_cloud=with_cloud or [""], with_particles=with_particles
+                                       or [""], colors=colours), static=True)
         rec.send_recording_name(
             viewer_safe(self.run_info.get("name", f"{sequence.name} · {', '.join(names)}"))
         )
@@ -372,23 +385,23 @@ class RerunLogger(Observer):
         )
         for s in self._states:
             p, c = s.paths, s.color
-            lines = {p.iou: (c, f"{s.name} IoU"), p.center_error: (c, f"{s.name} centre error")}
+            lines = {p.iou: (c, f"{s.prefix}IoU"), p.center_error: (c, f"{s.prefix}centre error")}
             if s.name in with_particles:
                 lines.update(
                     {
-                        p.ess: (s.series_colors["ess"], f"{s.name} ESS/N"),
-                        p.max_weight: (s.series_colors["max"], f"{s.name} max weight"),
-                        p.survivors: (s.series_colors["survivors"], f"{s.name} survivors/N"),
-                        p.distance_min: (s.series_colors["min"], f"{s.name} min d"),
-                        p.distance_mean: (s.series_colors["mean"], f"{s.name} mean d (weighted)"),
-                        p.spread: (s.series_colors["spread"], f"{s.name} template spread"),
+                        p.ess: (s.series_colors["ess"], f"{s.prefix}ESS/N"),
+                        p.max_weight: (s.series_colors["max"], f"{s.prefix}max weight"),
+                        p.survivors: (s.series_colors["survivors"], f"{s.prefix}survivors/N"),
+                        p.distance_min: (s.series_colors["min"], f"{s.prefix}min d"),
+                        p.distance_mean: (s.series_colors["mean"], f"{s.prefix}mean d"),
+                        p.spread: (s.series_colors["spread"], f"{s.prefix}spread"),
                     }
                 )
                 rec.log(
                     p.resampled,
                     rr.SeriesPoints(
                         colors=[s.series_colors["resampled"]],
-                        names=[f"{s.name} resampled"],
+                        names=[f"{s.prefix}resampled"],
                         markers=["Circle"],
                         marker_sizes=[1.5],
                     ),
@@ -403,20 +416,21 @@ class RerunLogger(Observer):
                     p.marker(kind),
                     rr.SeriesPoints(
                         colors=[c],
-                        names=[f"{s.name} {kind}"],
+                        names=[f"{s.prefix}{kind}"],
                         markers=[marker],
                         marker_sizes=[6.0 if kind != "suspect" else 4.0],
                     ),
                     static=True,
                 )
-            why.log_static(rec, p, s.name, c, s.name in with_cloud)
+            why.log_static(rec, p, s.prefix, c, s.name in with_cloud)
+            story.log_story_static(rec, p)
             rec.log(
                 p.box,
                 rr.Boxes2D.from_fields(
                     colors=[c],
                     radii=[0.9],
                     labels=[s.name],
-                    show_labels=len(self._states) > 1,
+                    show_labels=False,  # the name goes by a corner of its own (p.label), apart from the others'
                     draw_order=45.0,
                 ),
                 static=True,
@@ -446,9 +460,10 @@ class RerunLogger(Observer):
         i = int(frame.index)
         self._last_frame = i
         if self._blueprint_args is not None:
+            h, w = np.shape(frame.image)[:2]
             if rec.is_enabled():  # a disabled stream has no application to attach a blueprint to
-                h, w = np.shape(frame.image)[:2]
                 rec.send_blueprint(build_blueprint(*self._blueprint_args, image_size=(w, h)))
+            rec.log(P.LAYOUT, rr.AnyValues(image_size=[int(w), int(h)]), static=True)
             self._blueprint_args = None
         self._set_time(frame)
         rec.log(
@@ -505,6 +520,7 @@ class RerunLogger(Observer):
         self._log_diagnostics(s, frame, record, box, gt, est_t, prepared_cache, problems, dense)
         if found is not None:
             self._log_events(s, frame, found)
+            self._log_story(s, found)
         if i <= s.dense_until and i not in s.drawn:  # an event on this very frame: its views too
             self._log_diagnostics(s, frame, record, box, gt, est_t, prepared_cache, problems, dense=True)
         if problems:
@@ -516,6 +532,13 @@ class RerunLogger(Observer):
         box = checked(record.box, (4,), "box", problems)
         if box is not None:
             rec.log(p.box, rr.Boxes2D(mins=[box[:2]], sizes=[box[2:]]))
+            if len(self._states) > 1:
+                # Each tracker's name by its own corner of its box (top-left, bottom-left, top-right,
+                # bottom-right, ...): two trackers on the same target do not print on top of each other.
+                k = s.index % 4
+                corner = (box[0] + box[2] * (k // 2), box[1] + box[3] * (k % 2))
+                rec.log(p.label, rr.Points2D([corner], radii=[0.0], labels=[s.name], colors=[s.color],
+                                             show_labels=True, draw_order=46.0))
         corners = checked(record.corners, (4, 2), "corners", problems)
         if corners is not None:
             rec.log(p.region, rr.LineStrips2D(closed_strips(corners[None]).astype(np.float32)))
@@ -609,9 +632,9 @@ class RerunLogger(Observer):
         for k in share:
             if k not in s.terms_seen:
                 s.terms_seen.add(k)
-                rec.log(p.term_share(k), rr.SeriesLines(names=[f"{s.name} share of d_eff² · {k}"], widths=[2.0]),
+                rec.log(p.term_share(k), rr.SeriesLines(names=[f"{s.prefix}share of d_eff² · {k}"], widths=[2.0]),
                         static=True)
-                rec.log(p.term_moved(k), rr.SeriesLines(names=[f"{s.name} weight moved by {k}"], widths=[0.8]),
+                rec.log(p.term_moved(k), rr.SeriesLines(names=[f"{s.prefix}weight moved by {k}"], widths=[0.8]),
                         static=True)
             rec.log(p.term_share(k), rr.Scalars(share[k]))
             if k in moved:
@@ -695,7 +718,7 @@ class RerunLogger(Observer):
                 s.stages_seen.add(stage)
                 rec.log(
                     path,
-                    rr.SeriesLines(names=[f"{s.name} {stage}"], widths=[1.0 if stage != "total" else 2.0]),
+                    rr.SeriesLines(names=[f"{s.prefix}{stage}"], widths=[1.0 if stage != "total" else 2.0]),
                     static=True,
                 )
             rec.log(path, rr.Scalars(float(sec) * 1e3))
@@ -747,6 +770,8 @@ class RerunLogger(Observer):
     def _redo_around(self, s: _TrackerState, first: int, last: int) -> None:
         """The costly views of frames ``first..last`` (0-based indices) kept in memory, logged at their frames."""
         here = self._recent[-1][0]
+        pending = list(s.clear_next)  # what this frame's own views need cleared on the next frame
+        s.clear_next = []
         for frame, records in list(self._recent):
             i = int(frame.index)
             if not first <= i <= last or i == int(here.index):
@@ -760,22 +785,35 @@ class RerunLogger(Observer):
             box = checked(record.box, (4,), "box", problems)
             est_t = checked(record.estimate_template, (-1, -1), "estimate_template", problems)
             self._log_diagnostics(s, frame, record, box, gt, est_t, {}, problems, dense=True)
-            # The views of a past frame show on that frame only.
-            nxt = frame_number(i) + 1
-            self.stream.set_time(P.FRAME_TIMELINE, sequence=nxt)
-            for path in s.clear_next:
-                self.stream.log(path, rr.Clear(recursive=False))
+            # The views of a past frame show on that frame only: cleared on the next one, unless that
+            # frame's own views are already logged (a clear logged after them would wipe them out).
+            if i + 1 not in s.drawn:
+                self.stream.set_time(P.FRAME_TIMELINE, sequence=frame_number(i) + 1)
+                for path in s.clear_next:
+                    self.stream.log(path, rr.Clear(recursive=False))
             s.clear_next = []
+        s.clear_next = pending
         self._set_time(here)
 
     def _log_events(self, s: _TrackerState, frame, found: FrameNews) -> None:
-        """Events, diagnoses and suspects of the diagnoser, each on the frame it belongs to."""
+        """Events, diagnoses and suspects of the diagnoser, each on the frame it belongs to.
+
+        Every Events row leads with its kind, frame and cause (:func:`covviz.viz.story.headline`); a loss
+        and its diagnosis are one row (``LOST 84 · OCCLUSION · drift began 70``), the loss's numbers and
+        the diagnosis's card below it.
+        """
         rec, p = self.stream, s.paths
         number = frame_number(frame.index)
+        diagnosed = {d.lost_at: d for d in found.diagnoses}
+        lost_text = {}
         for ev in found.events:
             if ev.frame != number:  # a drift is reported on the frame where it began
                 self._at_number(ev.frame)
-            rec.log(p.events, rr.TextLog(viewer_safe(f"[{s.name}] frame {ev.frame}: {ev.text}"), level=ev.level))
+            if ev.kind == "lost" and ev.frame in diagnosed:
+                lost_text[ev.frame] = ev.text  # one row with its diagnosis, below
+            else:
+                rec.log(p.events, rr.TextLog(viewer_safe(story.row(self._event_head(s, ev), f"[{s.name}] {ev.text}")),
+                                             level=ev.level))
             if ev.kind in ("drift", "lost", "recovered") and np.isfinite(ev.iou):
                 rec.log(p.marker(ev.kind), rr.Scalars(ev.iou))
             self._event_record(s, ev.kind, ev.frame, ev.level, ev.text)
@@ -783,24 +821,59 @@ class RerunLogger(Observer):
                 self._set_time(frame)
             if ev.kind == "lost":
                 s.losses.append(ev.frame)
+                s.lost = True
+            elif ev.kind == "recovered":
+                s.lost = False
             elif ev.kind == "drift":
                 s.drifts.append(ev.frame)
             elif ev.kind == "storm":
                 s.n_storms += 1
         for d in found.diagnoses:
             s.diagnoses.append(d)
-            rec.log(p.events, rr.TextLog(viewer_safe(f"[{s.name}] {d.text}"), level="ERROR"))
+            head = story.headline(f"{self._who(s)}LOST {d.lost_at}", d.cause.replace("_", " ").upper(),
+                                  f"drift began {d.drift_began}")
+            body = "\n".join(t for t in (lost_text.get(d.lost_at, ""), d.text) if t)
+            rec.log(p.events, rr.TextLog(viewer_safe(story.row(head, f"[{s.name}] {body}")), level="ERROR"))
             self._event_record(s, "diagnosis", d.lost_at, "ERROR", d.text, cause=d.cause, evidence=d.as_dict())
             # The views back to the drift onset, and on for a few frames.
             self._redo_around(s, d.drift_began - 1 - self.config.diagnosis.look_before, d.lost_at - 1)
             s.dense_until = max(s.dense_until, int(frame.index) + self.config.dense_after)
         for sp in found.suspects:
-            rec.log(p.events, rr.TextLog(viewer_safe(f"[{s.name}] frame {sp.frame}: suspect - {sp.text}"), level="WARN"))
+            head = story.headline(f"{self._who(s)}SUSPECT {sp.frame}", sp.kind.replace("_", " "))
+            rec.log(p.events, rr.TextLog(viewer_safe(story.row(head, f"[{s.name}] suspect - {sp.text}")), level="WARN"))
             self._event_record(s, "suspect", sp.frame, "WARN", sp.text, cause=sp.kind)
             iou_now = found.evidence.iou
             if np.isfinite(iou_now):
                 rec.log(p.marker("suspect"), rr.Scalars(iou_now))
             s.dense_until = max(s.dense_until, int(frame.index) + self.config.dense_after)
+
+    def _who(self, s: _TrackerState) -> str:
+        """``[name] `` before a headline in a recording of several trackers (the Events' path column is cut)."""
+        return f"[{s.name}] " if len(self._states) > 1 else ""
+
+    def _event_head(self, s: _TrackerState, ev) -> str:
+        """The first line of an event's row: kind, frame, what it was."""
+        who = self._who(s)
+        iou_txt = f"IoU {ev.iou:.2f}" if np.isfinite(ev.iou) else ""
+        if ev.kind == "lost":
+            return story.headline(f"{who}LOST {ev.frame}", iou_txt)
+        if ev.kind == "drift":
+            return story.headline(f"{who}DRIFT {ev.frame}", iou_txt, f"lost at {ev.detected_at}")
+        if ev.kind == "recovered":
+            return story.headline(f"{who}RECOVERED {ev.frame}", iou_txt, f"confirmed at {ev.detected_at}")
+        if ev.kind == "storm":
+            return story.headline(f"{who}STORM {ev.frame}", "weights on a handful of particles")
+        if ev.kind == "storm_end":
+            return story.headline(f"{who}storm over {ev.frame}")
+        return story.headline(f"{who}{ev.kind.upper()} {ev.frame}")
+
+    def _log_story(self, s: _TrackerState, found: FrameNews) -> None:
+        """The track lane of the story strip, on the frames where its state changes."""
+        state = story.track_state(found.evidence.label, s.lost, float(found.evidence.iou),
+                                  self.config.diagnosis.on_track_iou)
+        if state != s.story_state:
+            s.story_state = state
+            self.stream.log(s.paths.story_lane("track"), rr.StateChange(state=state))
 
     def _at_number(self, number: int) -> None:
         self.stream.set_time(P.FRAME_TIMELINE, sequence=int(number))
@@ -819,30 +892,53 @@ class RerunLogger(Observer):
         )
 
     def _log_likelihood(self, s: _TrackerState, model, prepared, pose, est_t, inputs) -> None:
+        """The likelihood map as a heat overlay over the searched region, its outline, colour bar and peak.
+
+        The colours span the map's own range, from the best position down to the worst, on a square-root
+        scale (the likelihood at σ = 0.3 is one bright cell on a linear one), so the whole searched region
+        is coloured; the best position is a thin ring, no label, so the target under
+        it stays visible.
+        """
         cfg, rec, p = self.config, self.stream, s.paths
         lm = likelihood_map(model, prepared, pose, est_t, cfg.likelihood_grid, cfg.likelihood_reach, **inputs)
         x0, y0, x1, y1 = lm.extent
         g = cfg.likelihood_grid
-        rec.log(
-            p.likelihood,
-            rr.Transform3D(translation=[x0, y0, 0.0], scale=[(x1 - x0) / g, (y1 - y0) / g, 1.0]),
-            # An opacity below 1 puts the image in the viewer's blended pass; at the default (1)
-            # its transparent pixels would hide the frame (checked with rerun 0.41).
-            rr.Image(
-                likelihood_rgba(lm.log_likelihood),
-                color_model="RGBA",
-                draw_order=5.0,
-                opacity=0.9,
-                magnification_filter="Linear",
-            ),
-        )
-        rec.log(
-            p.likelihood_peak,
-            rr.Points2D(
-                [lm.best], radii=[-5.0], colors=[(255, 255, 255)], labels=["best match"], draw_order=40.0
-            ),
-        )
-        s.clear_next += [p.likelihood, p.likelihood_peak]
+        L = np.asarray(lm.log_likelihood, dtype=np.float64)
+        finite = L[np.isfinite(L)]
+        span = float(max(-finite.min(), 1.0)) if finite.size else LIKELIHOOD_RANGE_NATS
+        # Heat cells as overlapping discs in the frame's own pixels (no transform to go wrong): one per
+        # position of the map, coloured by its log-likelihood on a square-root scale of the map's range.
+        # Square cells (a tall or wide region gets more of them, the map interpolated bilinearly), so the
+        # discs cover the region without spilling over its outline.
+        cell = min(x1 - x0, y1 - y0) / g
+        nx = int(np.clip(round((x1 - x0) / cell), 2, 4 * g))
+        ny = int(np.clip(round((y1 - y0) / cell), 2, 4 * g))
+        cw, ch = (x1 - x0) / nx, (y1 - y0) / ny
+        gx, gy = np.meshgrid(x0 + (np.arange(nx) + 0.5) * cw, y0 + (np.arange(ny) + 0.5) * ch)
+        Lf = np.nan_to_num(L, nan=-span, neginf=-span)
+        if (ny, nx) != Lf.shape:
+            Lf = cv2.resize(Lf.astype(np.float32), (nx, ny), interpolation=cv2.INTER_LINEAR).astype(np.float64)
+        shown = -span * np.sqrt(np.clip(-Lf, 0.0, span) / span)
+        rgba = likelihood_rgba(shown, span, floor_alpha=60).reshape(-1, 4)
+        rgba[:, 3] = (0.55 * rgba[:, 3]).astype(np.uint8)
+        rec.log(p.likelihood, rr.Points2D(np.stack([gx.ravel(), gy.ravel()], 1), radii=[0.6 * max(cw, ch)],
+                                          colors=rgba, draw_order=5.0))
+        # The searched region's outline and, above it, the colour bar: best (bright) .. span nats below (dark).
+        rec.log(p.likelihood_region, rr.LineStrips2D([[(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)]],
+                                                    colors=[(255, 170, 60, 160)], radii=[0.3], draw_order=6.0))
+        nb = 24
+        yb = y0 - max(3.0, 0.05 * (y1 - y0))
+        bx = x0 + (np.arange(nb) + 0.5) * (x1 - x0) / nb
+        bar = likelihood_rgba(np.linspace(-span, 0.0, nb)[None, :], span, floor_alpha=255).reshape(-1, 4)
+        rec.log(p.likelihood_bar, rr.Points2D(np.stack([bx, np.full(nb, yb)], 1), radii=[0.55 * (x1 - x0) / nb],
+                                              colors=bar, draw_order=41.0))
+        rec.log(p.likelihood_bar_labels,
+                rr.Points2D([(x0, yb), (x1, yb)], radii=[0.0],
+                            labels=[f"-{span:.0f} nats (sqrt)", "best"], colors=[(230, 230, 230)], show_labels=True,
+                            draw_order=41.0))
+        ring = lm.best + 0.03 * (x1 - x0) * np.stack([np.cos(t := np.linspace(0, 2 * np.pi, 17)), np.sin(t)], 1)
+        rec.log(p.likelihood_peak, rr.LineStrips2D([ring], colors=[(255, 255, 255)], radii=[0.35], draw_order=40.0))
+        s.clear_next += [p.likelihood, p.likelihood_peak, p.likelihood_region, p.likelihood_bar, p.likelihood_bar_labels]
 
     def _log_cloud(self, s: _TrackerState, model, prepared, frame, record, pose, gt) -> None:
         cfg, rec, p = self.config, self.stream, s.paths
@@ -932,16 +1028,27 @@ class RerunLogger(Observer):
             "initial": {"colors": [INITIAL_COLOR], "radii": [-5.0], **lab("initial")},
             "target": {"colors": [GT_COLOR], "radii": [-5.5], "labels": [f"target (frame {frame_number(frame_index)})"]},
         }
+        lo, hi = X.min(axis=0), X.max(axis=0)
+        # The estimate's and the initial template's labels sit apart (above, below their points): the two
+        # are often close, and labels at their points would print on top of each other.
+        nudge = {"estimate": -0.07, "initial": 0.07}
         for order, kind in enumerate(style):
             m = kinds == kind
             path = f"{root}/{kind}"
             if m.any():
-                rec.log(path, rr.Points2D(X[m], draw_order=float(order), **style[kind]))
+                st = dict(style[kind])
+                text = st.pop("labels", None) if kind in nudge else None
+                rec.log(path, rr.Points2D(X[m], draw_order=float(order), **st))
+                if text:
+                    at = X[m][:1] + np.array([0.0, nudge[kind] * float((hi - lo).max() + 1e-9)])
+                    rec.log(f"{path}_label", rr.Points2D(at, labels=text, radii=[0.0], colors=st["colors"],
+                                                         show_labels=True, draw_order=20.0))
             else:
                 rec.log(path, rr.Clear(recursive=False))
+                if kind in nudge:
+                    rec.log(f"{path}_label", rr.Clear(recursive=False))
         # Two invisible points a margin outside the picture, so the view's automatic bounds leave
         # room for the labels of points on the edge.
-        lo, hi = X.min(axis=0), X.max(axis=0)
         pad = 0.15 * (hi - lo).max() + 1e-6
         rec.log(f"{root}/margin", rr.Points2D([lo - pad, hi + pad], radii=[0.0], colors=[(0, 0, 0, 0)]))
         return stress1(X, D)
@@ -977,6 +1084,15 @@ class RerunLogger(Observer):
                     f"| {s.name} | {len(r.boxes)} | {r.fps:.1f} | {auc} | {p20} | {miou} | "
                     f"{lost} | {', '.join(map(str, s.drifts)) or '–'} | {s.n_storms} |"
                 )
+            lines += [
+                "",
+                ("*frames*: frames tracked. *lost at*: IoU < 0.1 (the IoU rule); the paper's r_on_track counts a frame "
+                "on track while the centre error is within the truth's size, so a box of the wrong size can be "
+                "lost by IoU and on track by centre. A loss's card counts its off-track frames (model / search / "
+                "estimate) from its drift to the loss; the story strip shows them over the whole run. *storms*: "
+                "ESS/N < 0.05 on 3 frames while the IoU fell below 0.5 (or 30 frames without ground truth); peaked "
+                "weights on a run that stays on track are not one."),
+            ]
             replays = found.counterfactual
             for s, rp in zip(self._states, replays):
                 self._log_replays(s, rp, results[s.index])
@@ -1008,20 +1124,30 @@ class RerunLogger(Observer):
         for lost_at, rp in sorted(replays.items()):
             for kind, o in rp.outcomes.items():
                 col = REPLAY_COLORS.get(kind, (200, 200, 200, 110))
-                rec.log(p.replay_iou(kind), rr.SeriesLines(names=[f"{s.name} replay: {kind}"], colors=[col[:3]],
+                rec.log(p.replay_iou(kind), rr.SeriesLines(names=[f"{s.prefix}replay: {kind}"], colors=[col[:3]],
                                                           widths=[1.0]), static=True)
                 for k, box in enumerate(o.boxes):
                     n = rp.start + k
                     rec.set_time(P.FRAME_TIMELINE, sequence=n)
                     rec.log(p.replay_box(kind), rr.Boxes2D(mins=[box[:2]], sizes=[box[2:]], colors=[col],
-                                                            labels=[kind], radii=0.5, draw_order=12.0))
+                                                            labels=[kind], show_labels=False, radii=0.5,
+                                                            draw_order=12.0))
                     if n - 1 < len(truth) and np.all(np.isfinite(truth[n - 1])):
                         rec.log(p.replay_iou(kind), rr.Scalars(float(iou(box[None], truth[n - 1][None])[0])))
                 rec.set_time(P.FRAME_TIMELINE, sequence=rp.end + 1)
                 rec.log(p.replay_box(kind), rr.Clear(recursive=False))
             rec.set_time(P.FRAME_TIMELINE, sequence=lost_at)
-            text = f"[{s.name}] frame {lost_at}: {rp.line()}"
-            rec.log(p.events, rr.TextLog(viewer_safe(text), level="INFO"))
+            cause = next((d.cause for d in s.diagnoses if d.lost_at == lost_at), "")
+            marks = " ".join(f"{k} {'kept' if o.kept else 'lost'}" for k, o in rp.outcomes.items() if k != "none")
+            head = story.headline(f"{self._who(s)}LOST {lost_at}", cause.replace("_", " ").upper(),
+                                  f"verdict {rp.verdict.upper()}", marks)
+            rec.log(p.events, rr.TextLog(viewer_safe(story.row(head, f"[{s.name}] frame {lost_at}: {rp.line()}")),
+                                         level="INFO"))
+            # The verdict lane: from the loss to the end of its replay.
+            rec.log(p.story_lane("verdict"), rr.StateChange(state=rp.verdict))
+            rec.set_time(P.FRAME_TIMELINE, sequence=max(rp.end, lost_at) + 1)
+            rec.log(p.story_lane("verdict"), story.clear_state())
+            rec.set_time(P.FRAME_TIMELINE, sequence=lost_at)
             details = {k: v for k, v in rp.as_dict().items() if k != "replay"}
             details["replay"] = {k: v for k, v in rp.as_dict()["replay"].items() if k != "boxes"}
             self._event_record(s, "verdict", lost_at, "INFO", rp.line(), cause=rp.verdict, evidence=details)

@@ -101,9 +101,10 @@ def tracker_color(name: str, index: int) -> tuple:
 LIKELIHOOD_RANGE_NATS = 20.0
 
 
-def likelihood_rgba(log_lik: np.ndarray, range_nats: float = LIKELIHOOD_RANGE_NATS) -> np.ndarray:
-    """Relative log-likelihood (<= 0) -> RGBA: inferno colours, transparent far below the best."""
+def likelihood_rgba(log_lik: np.ndarray, range_nats: float = LIKELIHOOD_RANGE_NATS,
+                    floor_alpha: int = 0) -> np.ndarray:
+    """Relative log-likelihood (<= 0) -> RGBA: inferno colours, from ``floor_alpha`` far below the best."""
     v = np.nan_to_num(np.clip(1.0 + np.asarray(log_lik) / range_nats, 0.0, 1.0))
     rgb = cv2.applyColorMap((v * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)[..., ::-1]
-    a = (200 * np.sqrt(v)).astype(np.uint8)
+    a = (floor_alpha + (200 - min(floor_alpha, 200)) * np.sqrt(v)).astype(np.uint8)
     return np.concatenate([rgb, a[..., None]], axis=2)

@@ -13,7 +13,10 @@ The entity tree::
     trackers/<name>/video/top        LineStrips2D: the top-k particles, bold
     trackers/<name>/video/centres    Points2D: particle centres, sized by weight
     trackers/<name>/video/likelihood Image: the likelihood map around the estimate (placed by a Transform3D)
-    trackers/<name>/video/likelihood_peak  Points2D: the best position of that map
+    trackers/<name>/video/likelihood_peak  LineStrips2D: a ring at the best position of that map
+    trackers/<name>/video/likelihood_region  LineStrips2D: the region the map searched
+    trackers/<name>/video/likelihood_bar(_labels)  Image + Points2D: its colour bar, above the region
+    trackers/<name>/video/label      Points2D: the tracker's name by its box (several trackers)
     trackers/<name>/video/background LineStrips2D: regions sampled as background for the MDS picture
     trackers/<name>/video/replay/<fix> Boxes2D: a loss's counterfactual replay under each fix (faint)
     trackers/<name>/weights/...      Scalars: ess (ESS/N), max, survivors; SeriesPoints: resampled
@@ -31,6 +34,12 @@ The entity tree::
                                      background, target)
     trackers/<name>/cloud_zoom/<kind> Points2D: the same without the background (the cloud's structure)
     trackers/<name>/events           TextLog: storms, loss, drift onset, recovery
+    trackers/<name>/story/track      StateChange: the story strip's lane: on track / model / search /
+                                     estimate failure / lost / no truth (StateConfiguration static)
+    trackers/<name>/story/verdict    StateChange: each loss's counterfactual verdict, from the loss to the
+                                     end of its replay
+    trackers/<name>/story/alarm      StateChange: label-free drift alarms (an empty lane until they land)
+    layout                           AnyValues (static): what the blueprint was built from (``snapshot --tracker``)
     logger/time                      Scalars: milliseconds the logger spent on the frame
 
 Timelines: ``frame`` (0-based frame index) and, when the sequence has a frame
@@ -48,7 +57,9 @@ __all__ = [
     "FRAME_TIMELINE",
     "GROUND_TRUTH",
     "IMAGE",
+    "LAYOUT",
     "LOGGER_TIME",
+    "STORY_LANES",
     "SUMMARY",
     "TIME_TIMELINE",
     "TRACKERS",
@@ -67,6 +78,10 @@ IMAGE = "video/image"
 GROUND_TRUTH = "video/ground_truth"
 TRACKERS = "trackers"
 LOGGER_TIME = "logger/time"
+#: The blueprint's inputs (tracker names, which have templates / particles, image size), static.
+LAYOUT = "layout"
+#: Lanes of the story strip, per tracker, in the order they are drawn.
+STORY_LANES = ("track", "verdict", "alarm")
 
 #: Entities of the MDS figures of ``covviz mds`` (see :mod:`covviz.viz.mds_figures`).
 FIGURE_SEPARATION = "figures/separation"
@@ -120,6 +135,26 @@ class TrackerPaths:
     @property
     def likelihood_peak(self) -> str:
         return f"{self.video}/likelihood_peak"
+
+    @property
+    def likelihood_region(self) -> str:
+        """The outline of the region the likelihood map searched."""
+        return f"{self.video}/likelihood_region"
+
+    @property
+    def likelihood_bar(self) -> str:
+        """The map's colour bar, above the searched region (placed by a Transform3D) ..."""
+        return f"{self.video}/likelihood_bar"
+
+    @property
+    def likelihood_bar_labels(self) -> str:
+        """... and its end labels (``-R nats``, ``best``)."""
+        return f"{self.video}/likelihood_bar_labels"
+
+    @property
+    def label(self) -> str:
+        """The tracker's name beside its box (placed apart from the other trackers')."""
+        return f"{self.video}/label"
 
     @property
     def background(self) -> str:
@@ -204,6 +239,15 @@ class TrackerPaths:
     @property
     def events(self) -> str:
         return f"{self.root}/events"
+
+    @property
+    def story(self) -> str:
+        """The tracker's lanes of the story strip (a StateTimelineView)."""
+        return f"{self.root}/story"
+
+    def story_lane(self, lane: str) -> str:
+        """One lane: ``track`` (on track / failure kind / lost), ``verdict``, ``alarm``."""
+        return f"{self.story}/{lane}"
 
     def replay_box(self, kind: str) -> str:
         """A counterfactual replay's boxes (``none``, ``search``, ``model``, ``estimate``, ``search+model``,

@@ -17,7 +17,8 @@ from pathlib import Path
 from covviz.errors import InputError
 from covviz.viz import paths as P
 
-__all__ = ["RecordingError", "last_frame", "open_recording", "read_events", "readable_length"]
+__all__ = ["RecordingError", "application_id", "last_frame", "open_recording", "read_events", "read_layout",
+           "readable_length"]
 
 log = logging.getLogger("covviz")
 
@@ -231,3 +232,29 @@ def last_frame(path: str | Path) -> int | None:
                 if v:
                     last = max(v) if last is None else max(last, max(v))
     return last
+
+
+def read_layout(path: str | Path) -> dict | None:
+    """What the recording's blueprint was built from: ``trackers``, ``with_cloud``, ``with_particles``,
+    ``image_size`` (None for a recording without it: ``covviz mds``, or one from before it was logged)."""
+    out: dict = {}
+    with open_recording(path, covviz_only=False) as rec:
+        batches = [ch.to_record_batch() for ch in _stream(rec)
+                   if ch.is_static and ch.entity_path.strip("/") == P.LAYOUT]
+    for rb in batches:
+        for c in ("trackers", "with_cloud", "with_particles", "image_size"):
+            if c in rb.schema.names:
+                v = rb.column(c).to_pylist()[-1]
+                out[c] = [x for x in v if x != ""] if c != "image_size" else v
+    return out if "trackers" in out else None
+
+
+def application_id(path: str | Path) -> str | None:
+    """The application id of the recording in ``path`` (a blueprint for it must carry the same)."""
+    try:
+        with open_recording(path, covviz_only=False) as rec:
+            for store in rec.reader.recordings():
+                return str(store.application_id)
+    except Exception:  # noqa: BLE001 - older files, foreign files
+        return None
+    return None

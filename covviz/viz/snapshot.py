@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 from covviz.errors import InputError, free_space
+from covviz.viz.readback import read_layout
 from covviz.viz.viewer import find_viewer
 
 log = logging.getLogger("covviz")
@@ -34,9 +35,11 @@ __all__ = [
     "SnapshotError",
     "contact_sheet",
     "find_viewer",
+    "focus_blueprint",
     "parse_size",
     "snapshot",
     "snapshot_frames",
+    "tracker_names",
     "vulkan_available",
 ]
 
@@ -89,6 +92,57 @@ def _stop(proc: subprocess.Popen) -> None:
         proc.wait(timeout=5)
 
 
+def tracker_names(recording: str | Path) -> list[str]:
+    """The trackers of a tracking recording (``[]`` for one without a layout)."""
+    layout = read_layout(recording)
+    return list(layout["trackers"]) if layout else []
+
+
+def focus_blueprint(recording: str | Path, focus: str):
+    """The recording's layout with ``focus``'s panels open; :class:`SnapshotError` if it has no such tracker."""
+    from covviz.viz.blueprint import layout_blueprint
+
+    layout = read_layout(recording)
+    if layout is None:
+        raise SnapshotError(f"{recording}: no layout in the recording (not a 'covviz track' recording, or an old one)")
+    if focus not in layout["trackers"]:
+        raise SnapshotError(f"--tracker {focus}: the recording's trackers are {', '.join(layout['trackers'])}")
+    return layout_blueprint(layout, focus=focus)
+
+
+#: The frame view's per-tracker likelihood overlays (one shown at a time: the focused tracker's).
+_LIKELIHOOD_LEAVES = ("likelihood", "likelihood_peak", "likelihood_region", "likelihood_bar", "likelihood_bar_labels")
+
+
+def _apply_focus(client, layout: dict, focus: str) -> None:
+    """In the viewer's blueprint, open ``focus``'s tab of per-tracker panels and show its likelihood map only.
+
+    Edits the blueprint the viewer holds (read with ``get_blueprint``, written back whole with
+    ``set_blueprint``): the Tabs holding the per-tracker containers (named after their tracker) get
+    ``focus``'s as the active tab; the frame view's overrides show ``focus``'s likelihood overlay and hide
+    the others'.
+    """
+    d = dict(client.get_blueprint().blueprint)
+    mine = [k for k, v in d.items() if v.get("ContainerBlueprint", {}).get("display_name") == focus
+            and v["ContainerBlueprint"].get("container_kind") == "Vertical"]
+    for v in d.values():
+        cb = v.get("ContainerBlueprint")
+        if cb and cb.get("container_kind") == "Tabs":
+            for key in mine:
+                if key in cb.get("contents", []):
+                    cb["active_tab"] = key
+    if focus not in layout.get("with_cloud", []):
+        client.set_blueprint(d, of="recording")  # no map of its own: the recording's map stays
+        return
+    marker = "/ViewContents/overrides/trackers/"
+    views = {k.split("/ViewContents/")[0] for k in d if marker in k and "/video/" in k}
+    for view in views:
+        for name in layout.get("with_cloud", []):
+            for leaf in _LIKELIHOOD_LEAVES:
+                d[f"{view}{marker}{name}/video/{leaf}/visualizers"] = {"EntityBehavior": {"visible": name == focus}}
+    client.set_blueprint(d, of="recording")
+
+
 def snapshot(
     recording: str | Path,
     out: str | Path,
@@ -97,6 +151,7 @@ def snapshot(
     timeline: str = "frame",
     timeout: float = 60.0,
     settle: float = 1.0,
+    focus: str | None = None,
 ) -> Path:
     """Render ``recording`` in the headless Rerun viewer at ``frame`` and save a PNG.
 
@@ -117,6 +172,11 @@ def snapshot(
         Seconds to wait for the viewer to start and load.
     settle : float
         Seconds to let the views settle before the screenshot.
+    focus : str, optional
+        A tracker of the recording whose panels to show (its tab of the
+        per-tracker panels opened): the recording's layout is rebuilt with
+        that focus (:func:`covviz.viz.blueprint.layout_blueprint`) and opened
+        after it.
 
     Raises
     ------
@@ -124,7 +184,7 @@ def snapshot(
         No Vulkan driver or viewer binary, the viewer did not start, or no
         screenshot was written.
     """
-    return snapshot_frames(recording, [(out, frame)], size, timeline, timeout, settle)[0]
+    return snapshot_frames(recording, [(out, frame)], size, timeline, timeout, settle, focus=focus)[0]
 
 
 def snapshot_frames(
@@ -134,6 +194,7 @@ def snapshot_frames(
     timeline: str = "frame",
     timeout: float = 60.0,
     settle: float = 1.0,
+    focus: str | None = None,
 ) -> list[Path]:
     """Several screenshots of one recording, ``(png, frame)`` each, from a single viewer launch.
 
@@ -145,13 +206,17 @@ def snapshot_frames(
 
     if not Path(recording).is_file():
         raise SnapshotError(f"{Path(recording).resolve()}: no such recording")
+    layout = None
+    if focus is not None:
+        focus_blueprint(recording, focus)  # checks the name
+        layout = read_layout(recording)
     with readable_file(Path(recording)) as (src, cut):
         if cut is not None:
             log.warning("%s", cut_note(Path(recording), cut))
-        return _snapshot_frames(src, shots, size, timeline, timeout, settle)
+        return _snapshot_frames(src, shots, size, timeline, timeout, settle, layout, focus)
 
 
-def _snapshot_frames(recording, shots, size, timeline, timeout, settle) -> list[Path]:
+def _snapshot_frames(recording, shots, size, timeline, timeout, settle, layout=None, focus=None) -> list[Path]:
     recording = Path(recording).resolve()
     outs = [Path(o).resolve() for o, _ in shots]
     if not recording.is_file():
@@ -223,6 +288,9 @@ def _snapshot_frames(recording, shots, size, timeline, timeout, settle) -> list[
         for t in targets:
             if tl is not None and not tl.start <= t <= tl.end:
                 raise SnapshotError(f"frame {t} is outside the recording's frames {tl.start}..{tl.end}")
+        if layout is not None:
+            time.sleep(settle)  # the recording's own blueprint first, then its focus changed
+            _apply_focus(client, layout, focus)
         first = True
         for out, t in zip(outs, targets):
             if t is not None:

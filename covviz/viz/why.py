@@ -36,10 +36,10 @@ __all__ = [
 
 #: Evidence series on the "why off track" plot: name -> (label, line width, brightness of the tracker colour).
 SERIES = {
-    "best_truth": ("best d at the truth", 2.0, 1.0),
-    "best_est": ("best d at the estimate", 2.0, 0.55),
-    "d_truth": ("estimate's template at the truth", 1.0, 1.0),
-    "d_est": ("estimate's template at the estimate", 1.0, 0.55),
+    "best_truth": ("best d at truth", 2.0, 1.0),
+    "best_est": ("best d at estimate", 2.0, 0.55),
+    "d_truth": ("est. template at truth", 1.0, 1.0),
+    "d_est": ("est. template at estimate", 1.0, 0.55),
 }
 #: Frame labels as markers on that plot (only off-track frames): label -> (marker, colour).
 LABEL_STYLE = {
@@ -71,23 +71,25 @@ def _shade(color, k: float) -> tuple:
 # static parts
 # --------------------------------------------------------------------------- #
 def log_static(rec: rr.RecordingStream, p: P.TrackerPaths, name: str, color, with_model: bool) -> None:
-    """Series styles, label markers, heatmap axes and colour bars, slice axes of one tracker."""
-    rec.log(p.why_series("reach"), rr.SeriesLines(colors=[_shade(color, 0.8)], names=[f"{name} particles' best IoU with truth"],
+    """Series styles, label markers, heatmap axes and colour bars, slice axes of one tracker.
+
+    ``name`` goes before each series name: ``""`` alone, ``"<tracker> "`` in a recording of several.
+    """
+    rec.log(p.why_series("reach"), rr.SeriesLines(colors=[_shade(color, 0.8)], names=[f"{name}best particle IoU"],
                                                    widths=[1.0]), static=True)
     if not with_model:
         return
     for key, (label, width, k) in SERIES.items():
-        rec.log(p.why_series(key), rr.SeriesLines(colors=[_shade(color, k)], names=[f"{name} {label}"], widths=[width]),
+        rec.log(p.why_series(key), rr.SeriesLines(colors=[_shade(color, k)], names=[f"{name}{label}"], widths=[width]),
                 static=True)
     for label, (marker, col) in LABEL_STYLE.items():
-        rec.log(p.why_label(label), rr.SeriesPoints(colors=[col], names=[f"{name} {label} failure"], markers=[marker],
+        rec.log(p.why_label(label), rr.SeriesPoints(colors=[col], names=[f"{name}{label} failure"], markers=[marker],
                                                     marker_sizes=[4.0]), static=True)
-    for key, label in (("gap", "target's gap to the cloud / on-track level"),
-                       ("margin", "background margin (>0: target nearer)"), ("stress", "MDS stress-1 (cloud)")):
+    for key, label in (("gap", "target gap / usual"), ("margin", "bg margin (>0 ok)"), ("stress", "MDS stress")):
         rec.log(f"{p.cloud_health}/{key}", rr.SeriesLines(colors=[_shade(color, 0.6 if key != "gap" else 1.0)],
-                                                           names=[f"{name} {label}"], widths=[1.5]), static=True)
+                                                           names=[f"{name}{label}"], widths=[1.5]), static=True)
     _log_heatmap_axes(rec, p)
-    _log_slice_axes(rec, p)
+    _log_slice_axes(rec, p, color)
 
 
 def heatmap_underlay() -> tuple[np.ndarray, tuple[float, float]]:
@@ -133,7 +135,41 @@ def _log_heatmap_axes(rec, p: P.TrackerPaths) -> None:
             static=True)
 
 
-def _log_slice_axes(rec, p: P.TrackerPaths) -> None:
+#: The slices' underlay: its extent in the view's units and pixels per unit (text drawn into an image
+#: scales with the view, so a small panel shrinks its labels instead of piling them up).
+SLICE_UNDERLAY = (-22.0, -20.0, 2 * SLICE_WIDTH + SLICE_GAP + 12.0, SLICE_HEIGHT + 20.0)
+SLICE_PX = 4
+
+
+def slice_underlay(color=(255, 196, 0), truth_color=(235, 64, 52)) -> np.ndarray:
+    """The static part of the slices view as an RGB image: axes' names, the d scale, and the colour key."""
+    x0, y0, x1u, y1u = SLICE_UNDERLAY
+    k = SLICE_PX
+    W, H = int((x1u - x0) * k), int((y1u - y0) * k)
+    img = np.full((H, W, 3), 14, np.uint8)
+    font, white = cv2.FONT_HERSHEY_SIMPLEX, (215, 215, 215)
+
+    def px(x, y):
+        return int((x - x0) * k), int((y - y0) * k)
+
+    def text(t, x, y, col=white, centre=True, size=0.9):
+        (tw, th), _ = cv2.getTextSize(t, font, size, 2)
+        u, v = px(x, y)
+        cv2.putText(img, t, (u - (tw // 2 if centre else 0), v + th // 2), font, size, col, 2, cv2.LINE_AA)
+
+    xr = SLICE_WIDTH + SLICE_GAP
+    text("scale x0.6 .. x1.67", SLICE_WIDTH / 2, SLICE_HEIGHT + 10)
+    text("rotation -20 .. +20 deg", xr + SLICE_WIDTH / 2, SLICE_HEIGHT + 10)
+    text("d 10", -11, 2)
+    text("d 0", -11, SLICE_HEIGHT - 2)
+    for label, col, x in (("at the estimate's centre", color, 0.0), ("at the truth's centre", truth_color, xr)):
+        u, v = px(x, -12)
+        cv2.line(img, (u, v), (u + 12 * k, v), tuple(int(c) for c in col[:3]), 4, cv2.LINE_AA)
+        text(label, x + 15, -12, centre=False)
+    return img
+
+
+def _log_slice_axes(rec, p: P.TrackerPaths, color=(255, 196, 0), truth_color=(235, 64, 52)) -> None:
     x1 = SLICE_WIDTH + SLICE_GAP
     axes = [
         [(0, SLICE_HEIGHT), (SLICE_WIDTH, SLICE_HEIGHT)], [(0, 0), (0, SLICE_HEIGHT)],
@@ -141,12 +177,9 @@ def _log_slice_axes(rec, p: P.TrackerPaths) -> None:
         [(SLICE_WIDTH / 2, 0), (SLICE_WIDTH / 2, SLICE_HEIGHT)], [(x1 + SLICE_WIDTH / 2, 0), (x1 + SLICE_WIDTH / 2, SLICE_HEIGHT)],
     ]
     rec.log(f"{p.slices}/axes", rr.LineStrips2D(axes, colors=[(110, 110, 110)], radii=[0.3], draw_order=1.0), static=True)
-    labels = [
-        ((SLICE_WIDTH / 2, SLICE_HEIGHT + 8), "scale x0.6 .. x1.67"),
-        ((x1 + SLICE_WIDTH / 2, SLICE_HEIGHT + 8), "rotation -20 .. +20 deg"),
-    ]
-    rec.log(f"{p.slices}/labels", rr.Points2D([q for q, _ in labels], labels=[t for _, t in labels], radii=[0.0],
-                                              colors=[TEXT_COLOR], show_labels=True), static=True)
+    ux, uy = SLICE_UNDERLAY[:2]
+    rec.log(f"{p.slices}/underlay", rr.Transform3D(translation=[ux, uy, 0.0], scale=[1 / SLICE_PX, 1 / SLICE_PX, 1.0]),
+            rr.Image(slice_underlay(color, truth_color), color_model="RGB", draw_order=-10.0), static=True)
 
 
 # --------------------------------------------------------------------------- #
@@ -230,4 +263,4 @@ def log_slices(
             rec.log(path, rr.Clear(recursive=False))
             continue
         strips = [_slice_curve(0.0, sl.d_scale), _slice_curve(x1, sl.d_angle)]
-        rec.log(path, rr.LineStrips2D(strips, colors=[col], radii=[0.6], labels=[key, key], draw_order=5.0))
+        rec.log(path, rr.LineStrips2D(strips, colors=[col], radii=[0.6], draw_order=5.0))
