@@ -1,16 +1,14 @@
 """What a run needs from the machine, estimated before it starts: memory.
 
 The estimate is an upper bound calibrated on peak RSS (``ru_maxrss`` of
-``covviz track``, 2-core Linux box, numpy 2, numba kernels loaded, rerun 0.41;
-issue 19 found the earlier constants, set before the compiled kernels and the
-drift diagnosis, 30-40% below what runs took):
+``covviz track``, 2-core Linux box, numpy 2, numba kernels loaded, rerun 0.41):
 
 =======================================  ===========  ================
 run (Car4, 360×240, 300 frames)          no recording  with a recording
 =======================================  ===========  ================
 manifold, 600 particles                  238 MB       457 MB
 manifold, 4000 particles                 283 MB       623 MB
-manifold, 600 particles, 659 frames      231 MB       482 MB (issue 19)
+manifold, 600 particles, 659 frames      231 MB       482 MB
 =======================================  ===========  ================
 
 so about 13 KB a particle (the particle set, its warped patches and

@@ -126,7 +126,7 @@ def _print_diagnosis(found: dict | None) -> None:
               + (" (a loss's card counts those from its drift to the loss)" if found.get("diagnoses") else ""))
 
 def _print_alarms(found: dict | None, every: bool) -> None:
-    """Issue 21: the label-free drift alarms, one line each without ground truth (else their count)."""
+    """The label-free drift alarms, one line each without ground truth (else their count)."""
     from covviz.diagnosis.detector import describe_alarm
 
     alarms = (found or {}).get("alarms", [])

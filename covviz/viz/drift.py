@@ -1,4 +1,4 @@
-"""The label-free drift detector in the recording (issue 21): a ``drift probability`` series per tracker and
+"""The label-free drift detector in the recording: a ``drift probability`` series per tracker and
 its alarms in Events, with the signals that drove them.
 
 :class:`DriftRecorder` is an observer that runs a :class:`~covviz.diagnosis.detector.DriftWatch` and logs
