@@ -67,32 +67,44 @@ __all__ = [
 
 
 class CheckpointRing:
-    """One tracker's state every ``every`` frames, the last ``keep`` of them: a bounded memory of its past.
+    """One tracker's past states, kept in bounded memory: dense for the recent past, sparse further back.
 
-    The counterfactual replays fork a tracker from the newest checkpoint before the frame they
-    start at. A manifold state at ``n`` particles takes about ``n · 87 · 8`` bytes (kinematics and
-    templates), so the default ring (64 states) holds ~27 MB at 600 particles and reaches back
-    ``every · keep`` = 320 frames.
+    Every ``every`` frames a state goes into the dense ring (the last ``keep`` of them); every
+    ``long_every`` frames also into the sparse one (the last ``long_keep``). The counterfactual
+    replays fork a tracker from the newest checkpoint before the frame they start at and replay
+    unchanged from there, so a loss far from the end of a long run is still reached. A manifold
+    state at ``n`` particles takes about ``n · 87 · 8`` bytes (kinematics and templates): the
+    defaults (64 + 64 states) hold ~54 MB at 600 particles and reach back 320 frames densely and
+    3200 sparsely.
     """
 
-    def __init__(self, every: int = 5, keep: int = 64) -> None:
-        if every < 1 or keep < 1:
-            raise ValueError("a checkpoint ring needs every >= 1 and keep >= 1")
+    def __init__(self, every: int = 5, keep: int = 64, long_every: int = 50, long_keep: int = 64) -> None:
+        if min(every, keep, long_every, long_keep) < 1:
+            raise ValueError("a checkpoint ring needs every, keep, long_every and long_keep >= 1")
         self.every = int(every)
+        self.long_every = int(long_every)
         self._ring: deque = deque(maxlen=int(keep))
+        self._sparse: deque = deque(maxlen=int(long_keep))
 
     def __len__(self) -> int:
-        return len(self._ring)
+        return len(self._ring) + len(self._sparse)
+
+    def due(self, index: int) -> bool:
+        """Whether the state after frame ``index`` (0-based) is to be kept."""
+        return index % self.every == 0 or index % self.long_every == 0
 
     def add(self, index: int, state) -> None:
         """The state after frame ``index`` (0-based) was tracked."""
-        self._ring.append((int(index), state))
+        if index % self.every == 0:
+            self._ring.append((int(index), state))
+        if index % self.long_every == 0:
+            self._sparse.append((int(index), state))
 
     def at_or_before(self, index: int):
         """``(i, state)`` of the newest checkpoint with ``i <= index``, or None."""
         best = None
-        for i, state in self._ring:
-            if i <= index:
+        for i, state in (*self._sparse, *self._ring):
+            if i <= index and (best is None or i > best[0]):
                 best = (i, state)
         return best
 
@@ -345,7 +357,7 @@ def run_many(
     max_frames: int | None = None,
     progress: bool = False,
     seeds: Seq[int | None] | None = None,
-    checkpoints: tuple[int, int] | None = None,
+    checkpoints: tuple[int, ...] | None = None,
 ) -> list[RunResult]:
     """Run several trackers side by side on the same frames (each frame read once).
 
@@ -363,9 +375,9 @@ def run_many(
         Show a progress bar on stderr.
     seeds : sequence of int, optional
         Seeds to write into the results (one per tracker).
-    checkpoints : (every, keep), optional
-        Keep each snapshot-capable tracker's state every ``every`` frames, the last ``keep``
-        (:class:`CheckpointRing`, in :attr:`RunStart.checkpoints`); None: none kept.
+    checkpoints : tuple of int, optional
+        The :class:`CheckpointRing` arguments (``every, keep[, long_every, long_keep]``) of each
+        snapshot-capable tracker's states (in :attr:`RunStart.checkpoints`); None: none kept.
 
     Returns
     -------
@@ -444,7 +456,7 @@ def run_many(
                         found = ob.on_start(start, found) or found
                         started.append(ob)
             for ring, tr in zip(rings, trackers):
-                if ring is not None and i % ring.every == 0:
+                if ring is not None and ring.due(i):
                     ring.add(i, tr.snapshot())
             # A frame counts as done once every observer has it: a stop signal while one waits
             # (the recorder's queue full) is held until then, so the recording and the results

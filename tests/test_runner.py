@@ -135,3 +135,17 @@ def test_an_object_that_is_not_an_observer_is_refused(seq):
 
     with pytest.raises(TypeError, match="not an Observer"):
         run(IdentityTracker(), seq, [Duck()])
+
+
+def test_the_checkpoint_ring_is_dense_recently_and_sparse_far_back():
+    from covviz.runner import CheckpointRing
+
+    ring = CheckpointRing(every=5, keep=4, long_every=50, long_keep=3)
+    for i in range(400):
+        if ring.due(i):
+            ring.add(i, f"s{i}")
+    assert len(ring) == 4 + 3  # bounded: 4 recent, 3 far
+    assert ring.at_or_before(399) == (395, "s395") and ring.at_or_before(381) == (380, "s380")
+    assert ring.at_or_before(379) == (350, "s350")  # older than the dense ring: the sparse one reaches it
+    assert ring.at_or_before(260) == (250, "s250") and ring.at_or_before(249) is None  # beyond both
+    assert not ring.due(7) and ring.due(10) and ring.due(50)

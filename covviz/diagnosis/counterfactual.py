@@ -97,9 +97,9 @@ class CounterfactualConfig:
         Share of the particles the search fix moves to the truth on each frame.
     kept_iou : float
         The track is kept when the IoU at the loss and the mean IoU after it are at least this.
-    every, keep : int
-        The runner's checkpoints: every this many frames, the last ``keep`` (memory bound: see
-        :class:`covviz.runner.CheckpointRing`).
+    every, keep, long_every, long_keep : int
+        The runner's checkpoints: every ``every`` frames the last ``keep``, and every ``long_every``
+        frames the last ``long_keep`` (memory bound: see :class:`covviz.runner.CheckpointRing`).
     max_cache_bytes : int
         The window's frames are decoded once and kept for the five replays up to this size.
     """
@@ -110,6 +110,8 @@ class CounterfactualConfig:
     kept_iou: float = 0.5
     every: int = 5
     keep: int = 64
+    long_every: int = 50
+    long_keep: int = 64
     max_cache_bytes: int = 512_000_000
 
     def __post_init__(self):
@@ -119,8 +121,8 @@ class CounterfactualConfig:
             raise ValueError("search_fraction and kept_iou must be in (0, 1]")
 
     @property
-    def checkpoints(self) -> tuple[int, int]:
-        return self.every, self.keep
+    def checkpoints(self) -> tuple[int, int, int, int]:
+        return self.every, self.keep, self.long_every, self.long_keep
 
 
 @dataclass(frozen=True, eq=False)
