@@ -5,7 +5,10 @@ written by :func:`covviz.experiments.results.save_result`; never runs a tracker.
 
 * ``report.md``: an overall table and one table per sequence (success AUC,
   P@20, r_on_track, rms_on_track, fps, failed frames; mean ± std over seeds),
-  a success-AUC matrix, and the thresholds used;
+  a success-AUC matrix, and the thresholds used; the losses by diagnosed cause and, for
+  a bench run with ``--counterfactual``, what fixing each kind of failure would gain
+  (:mod:`covviz.experiments.report_counterfactual`: the only part that reads the
+  sequences, for their ground truth);
 * ``img/bench_success.png``, ``img/bench_precision.png``: the OTB success and
   precision plots (curves averaged over sequences);
 * ``img/bench_on_track.png``: the paper's figure, bar charts of the track
@@ -35,6 +38,15 @@ from pathlib import Path
 
 import numpy as np
 
+from covviz.experiments.report_counterfactual import (
+    TrackerReplays,
+    fix_aucs,
+    losses_of,
+    render_section,
+    saved_boxes,
+    success_auc,
+    summarize_replays,
+)
 from covviz.experiments.results import ResultError, load_result, read_manifest
 from covviz.metrics import IOU_THRESHOLDS, ON_TRACK_GAMMA, PRECISION_AT, PRECISION_THRESHOLDS
 
@@ -85,6 +97,9 @@ class Run:
     causes: tuple = ()  # the diagnosed cause of each loss (covviz.diagnosis.drift)
     losses: tuple = ()  # (drift began, lost at) of each loss, 1-based frames
     suspects: tuple = ()  # frames of the label-free suspects
+    loss_replays: tuple = ()  # each loss with its counterfactual replays (report_counterfactual.LossReplay)
+    auc: float = float("nan")  # success AUC from the saved boxes (nan: not computed, or no ground truth)
+    fixed_auc: dict = field(default_factory=dict)  # fix -> AUC with the losses' windows replayed under it
 
 
 def _diagnosis_fields(found: dict | None) -> dict:
@@ -156,8 +171,9 @@ def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
     }
     seen_thr = False
     runs: list[Run] = []
+    boxes_of: list[tuple] = []  # per run: its boxes (0-based) and the sequence's path
     for js in files:
-        doc, _boxes = load_result(js)
+        doc, boxes = load_result(js)
         if trackers is not None and doc.get("tracker") not in trackers:
             continue
         if doc.get("interrupted"):
@@ -194,13 +210,56 @@ def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
                 success=succ,
                 precision=prec,
                 **_diagnosis_fields(doc.get("diagnosis")),
+                loss_replays=losses_of(doc.get("diagnosis"), len(boxes), js),
             )
         )
+        boxes_of.append((boxes, (doc.get("bench") or {}).get("path")))
     if not runs:
         raise ResultError(
             f"{d}: no results to report (expected <sequence>/<tracker>.json files from covviz bench)"
         )
-    return manifest, runs, thr
+    return manifest, _with_fix_aucs(runs, boxes_of, manifest), thr
+
+
+def _with_fix_aucs(runs: list[Run], boxes_of: list, manifest: dict | None) -> list[Run]:
+    """The runs of every tracker with replays, with their own AUC and the AUC under each fix
+    (:mod:`covviz.experiments.report_counterfactual`); needs the sequences' ground truth."""
+    replayed = {r.tracker for r in runs if any(lr.replayed for lr in r.loss_replays)}
+    if not replayed:
+        return runs
+    from covviz.data.sequences import SequenceError, open_sequence
+
+    cache: dict = {}
+    warned: set = set()
+
+    def truth(sequence: str, path: str | None, n: int) -> np.ndarray | None:
+        cands = [p for p in (path, str(Path(manifest["root"]) / sequence) if (manifest or {}).get("root") else None)
+                 if p]
+        for p in cands:
+            if p not in cache:
+                try:
+                    cache[p] = np.asarray(open_sequence(p).groundtruth, dtype=np.float64)
+                except (SequenceError, OSError):
+                    cache[p] = None
+            if cache[p] is not None:
+                gt = np.full((n, 4), np.nan)
+                m = min(n, len(cache[p]))
+                gt[:m] = cache[p][:m]
+                return gt
+        if sequence not in warned:
+            warned.add(sequence)
+            log.warning("%s: ground truth not found (%s); its runs are left out of the replays' AUC table",
+                        sequence, ", ".join(cands) or "no path in the results")
+        return None
+
+    out = []
+    for r, (boxes, path) in zip(runs, boxes_of):
+        gt = truth(r.sequence, path, len(boxes)) if r.tracker in replayed else None
+        if gt is not None:
+            b = saved_boxes(boxes)
+            r = replace(r, auc=success_auc(b, gt), fixed_auc=fix_aucs(b, gt, r.loss_replays))
+        out.append(r)
+    return out
 
 
 # --------------------------------------------------------------------------- #
@@ -318,6 +377,8 @@ class Summary:
         ``(sequence, tracker) -> {cause: losses}`` over seeds.
     suspects : dict
         ``tracker -> covviz.diagnosis.drift.score_suspects`` totals over every run.
+    replays : dict
+        ``tracker -> report_counterfactual.TrackerReplays``: the counterfactual replays of its losses.
     """
 
     results_dir: Path
@@ -336,6 +397,7 @@ class Summary:
     causes: dict = field(default_factory=dict)
     causes_by_sequence: dict = field(default_factory=dict)
     suspects: dict = field(default_factory=dict)
+    replays: dict[str, TrackerReplays] = field(default_factory=dict)
 
 
 def summarize(results_dir: str | Path) -> Summary:
@@ -452,6 +514,7 @@ def summarize(results_dir: str | Path) -> Summary:
         causes=causes,
         causes_by_sequence=by_seq,
         suspects=suspects,
+        replays=summarize_replays(runs, trackers),
     )
 
 
@@ -614,6 +677,7 @@ def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
         L += [f"Needs `{OURS}` or `{BASELINE}` results; this bench has neither.", ""]
 
     L += _failure_section(summary)
+    L += render_section(summary.replays, summary.trackers)
     L += ["## Success AUC per sequence", ""]
     L += [
         "| sequence | frames | " + " | ".join(f"`{t}`" for t in trackers) + " |",
