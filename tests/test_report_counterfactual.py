@@ -240,6 +240,8 @@ def test_report_stability_and_cause_by_verdict(bench_dir):
     md = (out / "r.md").read_text()
     assert "| `manifold` | 3 | 1 | 0/1 (0%) | 1 |" in md
     assert "`csrt`: one run per sequence, nothing to compare." in md
+    assert rep.disagreements == (("Walk", (0, 28, "model"), (1, 26, "search")),)
+    assert "Verdicts that differ, `manifold`: Walk s0 at 28 model / s1 at 26 search." in md
     cv = md.split("### Cause × verdict")[1]
     assert "| cause | search | model |" in cv and "| occlusion | 2 | · |" in cv and "| fast motion | · | 1 |" in cv
     verdicts = md.split("### Losses by verdict")[1].split("###")[0]

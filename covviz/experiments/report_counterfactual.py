@@ -249,6 +249,8 @@ class TrackerReplays:
     unmatched, stability_losses : int
         Replayed losses with no counterpart in another seed, out of the replayed losses of
         (sequence, tracker) that ran with more than one seed.
+    disagreements : tuple
+        ``(sequence, (seed, lost_at, verdict), (seed, lost_at, verdict))`` of the matched pairs whose verdicts differ.
     """
 
     tracker: str
@@ -267,6 +269,7 @@ class TrackerReplays:
     same: int | None
     unmatched: int
     stability_losses: int
+    disagreements: tuple = ()
 
 
 def summarize_replays(runs, trackers) -> dict[str, TrackerReplays]:
@@ -293,6 +296,7 @@ def summarize_replays(runs, trackers) -> dict[str, TrackerReplays]:
         # verdict stability: the losses of different seeds of one sequence
         pairs = same = None
         unmatched = stability_losses = 0
+        disagreements = []
         for seq in sorted({r.sequence for r in rs}):
             by_seed = {r.seed: [(lr.lost_at, lr.verdict) for lr in r.loss_replays if lr.replayed]
                        for r in rs if r.sequence == seq}
@@ -301,6 +305,7 @@ def summarize_replays(runs, trackers) -> dict[str, TrackerReplays]:
             p, u = match_losses(by_seed)
             pairs, same = (pairs or 0) + len(p), (same or 0) + sum(a[2] == b[2] for a, b in p)
             unmatched += len(u)
+            disagreements += [(seq, a, b) for a, b in p if a[2] != b[2]]
             stability_losses += sum(len(v) for v in by_seed.values())
         out[t] = TrackerReplays(
             tracker=t, runs=len(rs), losses=len(losses), replayed=len(rep), verdicts=verdicts,
@@ -308,7 +313,7 @@ def summarize_replays(runs, trackers) -> dict[str, TrackerReplays]:
             not_identical=not_identical, scored_runs=len(scored),
             auc=float(np.mean([r.auc for r in scored])) if scored else float("nan"),
             gains=gains, cause_verdict=cause_verdict, pairs=pairs, same=same, unmatched=unmatched,
-            stability_losses=stability_losses,
+            stability_losses=stability_losses, disagreements=tuple(disagreements),
         )
     return out
 
@@ -395,7 +400,8 @@ def render_section(replays: dict[str, TrackerReplays], trackers) -> list[str]:
             "overrides an earlier where they overlap); then the OTB success AUC of the whole run. "
             "**ΔAUC F** = that AUC − the run's own, averaged over the tracker's runs (sequences × seeds; a run "
             "without a loss replayed under F counts 0). *AUC*: the mean of the runs' own success AUC. Both are "
-            f"computed from the saved boxes ({BOX_DECIMALS} decimals) and the sequences' ground truth, so "
+            f"computed from the saved boxes ({BOX_DECIMALS} decimals; the AUC may differ from the overall "
+            "table's in the fourth decimal) and the sequences' ground truth, so "
             "**ΔAUC none** is exactly 0 where the unchanged replays reproduced their runs; a fix's ΔAUC is what "
             "a tracker with that part fixed during its losses' windows (and only there) would gain."
         ),
@@ -434,6 +440,12 @@ def render_section(replays: dict[str, TrackerReplays], trackers) -> list[str]:
             share = f"{r.same}/{r.pairs} ({100 * r.same / r.pairs:.0f}%)" if r.pairs else "—"
             L.append(f"| `{t}` | {r.stability_losses} | {r.pairs} | {share} | {r.unmatched} |")
         L.append("")
+        for t in seeded:
+            dis = replays[t].disagreements
+            if dis:
+                shown = "; ".join(f"{sq} s{a[0]} at {a[1]} {a[2]} / s{b[0]} at {b[1]} {b[2]}" for sq, a, b in dis[:10])
+                more = f"; and {len(dis) - 10} more" if len(dis) > 10 else ""
+                L += [f"Verdicts that differ, `{t}`: {shown}{more}.", ""]
     once = [t for t in with_replays if replays[t].pairs is None]
     if once:
         L += [f"{', '.join(f'`{t}`' for t in once)}: one run per sequence, nothing to compare.", ""]
