@@ -336,13 +336,15 @@ def render_section(replays: dict[str, TrackerReplays], trackers) -> list[str]:
     L += [
         (
             "`covviz bench --counterfactual` replayed every loss from the tracker's state a few frames before "
-            "its drift began to a few frames after the loss, under each oracle fix of "
+            "its drift began (3 by default) to some frames after the loss (20 by default, fewer where the run "
+            "ended sooner), under each oracle fix of "
             "`covviz.diagnosis.counterfactual` (from the ground truth): `none` (unchanged: it must reproduce the "
             "run bit for bit), `estimate` (the estimate replaced by the particle nearest the truth), `search` "
             "(some particles moved to the truth), `model` (the templates set from the truth's look), "
             "`search+model` (both); trackers that cannot be forked (OpenCV's) were `restart`ed at the truth at "
-            "the drift onset. The **verdict** of a loss is the smallest fix that kept the track (estimate < "
-            "search < model < search+model), or *none helps*. The cause (the section above) names what happened "
+            "the drift onset. A replay *kept* the track when its IoU with the truth was ≥ 0.5 at the loss frame "
+            "and ≥ 0.5 on average over the frames after it. The **verdict** of a loss is the smallest fix that "
+            "kept the track (estimate < search < model < search+model; `restart` for OpenCV's), or *none helps*. The cause (the section above) names what happened "
             "in the scene; the verdict, which part of the tracker failed."
         ),
         "",
