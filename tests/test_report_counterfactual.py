@@ -301,3 +301,16 @@ def test_loss_replay_identical_reads_the_none_outcome():
     assert LossReplay(5, "scale").identical is None
     assert LossReplay(5, "scale", "search", {"none": {"kept": False, "identical": True}}).identical is True
     assert LossReplay(5, "scale", "restart", {"restart": {"kept": True}}).identical is None
+
+
+def test_latex_has_the_replays_tables(bench_dir):
+    out, _ = bench_dir
+    assert main(["report", str(out), "--out", str(out / "r.md"), "--latex"]) == 0
+    tex = (out / "r.tex").read_text()
+    verdicts = tex.split(r"\label{tab:covviz-auc}")[1].split(r"\label{tab:covviz-verdicts}")[0]
+    assert r"\texttt{manifold} & 3 & 3 & 3/3 & 2 & 1 & 0 \\" in verdicts
+    assert r"\texttt{csrt} & 1 & 1 & -- & 0 & 0 & 1 \\" in verdicts
+    gains = tex.split(r"\label{tab:covviz-verdicts}")[1].split(r"\label{tab:covviz-gains}")[0]
+    row = next(ln for ln in gains.splitlines() if ln.startswith(r"\texttt{manifold}"))
+    assert row.split(" & ")[3] == "0"  # ΔAUC none, exactly 0, the column after tracker, runs, AUC
+    assert tex.count(r"\begin{table}") == tex.count(r"\end{table}") == 2 + 2 + 1  # overall, AUC, replays, 1 sequence

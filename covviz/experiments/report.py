@@ -953,8 +953,46 @@ def render_latex(summary: Summary) -> str:
         L.append(f"{_tex(s)} & {summary.seq_frames.get(s, '?')} & " + " & ".join(cells) + r" \\")
     L += [r"\bottomrule", r"\end{tabular}", r"\caption{Success AUC per sequence.}",
           r"\label{tab:covviz-auc}", r"\end{table}", ""]
+    L += _latex_replays(summary)
     for s in summary.sequences:
         if summary.per_sequence.get(s):
             L += _latex_table(summary.per_sequence[s], f"{_tex(s)} ({summary.seq_frames.get(s, '?')} frames).",
                               f"tab:covviz-{''.join(c if c.isalnum() else '-' for c in s)}")
     return "\n".join(L)
+
+
+def _latex_replays(summary: Summary) -> list[str]:
+    """The counterfactual replays' two main tables in LaTeX: losses by verdict, and ΔAUC per fix (none without replays)."""
+    from covviz.experiments.report_counterfactual import GAIN_FIXES, VERDICTS, fmt_delta
+
+    reps = summary.replays
+    ts = [t for t in summary.trackers if t in reps and reps[t].replayed]
+    if not ts:
+        return []
+    cols = [v for v in VERDICTS if any(v in reps[t].verdicts for t in ts)]
+    fixes = [f for f in GAIN_FIXES if any(f in reps[t].gains for t in ts)]
+    tt = lambda t: r"\texttt{" + _tex(t) + "}"
+    L = [r"\begin{table}[t]", r"\centering", r"\small", r"\begin{tabular}{lrrr" + "r" * len(cols) + "}",
+         r"\toprule", " & ".join(["tracker", "losses", "replayed", r"\texttt{none} identical", *cols]) + r" \\",
+         r"\midrule"]
+    for t in ts:
+        r = reps[t]
+        ident = f"{r.none_identical}/{r.none_replays}" if r.none_replays else "--"
+        L.append(" & ".join([tt(t), str(r.losses), str(r.replayed), ident,
+                             *(str(r.verdicts.get(v, 0)) for v in cols)]) + r" \\")
+    L += [r"\bottomrule", r"\end{tabular}",
+          r"\caption{Losses by verdict: the smallest oracle fix whose replay kept the track.}",
+          r"\label{tab:covviz-verdicts}", r"\end{table}", ""]
+    L += [r"\begin{table}[t]", r"\centering", r"\small", r"\begin{tabular}{lrr" + "r" * len(fixes) + "}",
+          r"\toprule", " & ".join(["tracker", "runs", "AUC", *(r"$\Delta$" + _tex(f) for f in fixes)]) + r" \\",
+          r"\midrule"]
+    for t in ts:
+        r = reps[t]
+        cells = [_tex(fmt_delta(r.gains[f])) if f in r.gains else "--" for f in fixes]
+        L.append(" & ".join([tt(t), str(r.scored_runs), f"{r.auc:.3f}" if np.isfinite(r.auc) else "--", *cells])
+                 + r" \\")
+    L += [r"\bottomrule", r"\end{tabular}",
+          (r"\caption{What fixing each kind of failure would gain: success AUC with every loss's replayed window "
+          r"replaced by its replay under the fix, minus the run's own (mean over runs).}"),
+          r"\label{tab:covviz-gains}", r"\end{table}", ""]
+    return L

@@ -42,6 +42,7 @@ __all__ = [
     "LossReplay",
     "TrackerReplays",
     "fix_aucs",
+    "fmt_delta",
     "losses_of",
     "match_losses",
     "patched_boxes",
@@ -318,7 +319,7 @@ def summarize_replays(runs, trackers) -> dict[str, TrackerReplays]:
     return out
 
 
-def _signed(v: float) -> str:
+def fmt_delta(v: float) -> str:
     """A ΔAUC: exactly 0 as ``0``, anything else with its sign (``+0.000``: above 0 but below 0.0005)."""
     return "—" if not np.isfinite(v) else ("0" if v == 0 else f"{v:+.3f}")
 
@@ -415,7 +416,7 @@ def render_section(replays: dict[str, TrackerReplays], trackers) -> list[str]:
         r = replays[t]
         runs = f"{r.scored_runs}" + (f" of {r.runs}" if r.scored_runs != r.runs else "")
         auc = "—" if not np.isfinite(r.auc) else f"{r.auc:.3f}"
-        L.append(f"| `{t}` | {runs} | {auc} | " + " | ".join(_signed(r.gains.get(f, float('nan'))) for f in fixes)
+        L.append(f"| `{t}` | {runs} | {auc} | " + " | ".join(fmt_delta(r.gains.get(f, float('nan'))) for f in fixes)
                  + " |")
     L.append("")
     if any(replays[t].scored_runs < replays[t].runs for t in with_replays):
