@@ -273,6 +273,12 @@ def test_losses_without_replays_beside_replayed_ones(bench_dir):
     assert main(["report", str(out), "--out", str(md_path)]) == 0
     md = md_path.read_text()
     assert f"`ipca`: losses but none replayed — {NO_REPLAYS}, or no checkpoint reached them." in md
+    # a tracker with replays and a loss without: that loss is named
+    _save(out, seq, "manifold", 2, _drifting(np.random.default_rng(4), 40), [(44, "scale", None)])
+    assert main(["report", str(out), "--out", str(md_path)]) == 0
+    md = md_path.read_text()
+    assert "Not replayed, `manifold`: Walk s2 at 44." in md
+    assert "| `manifold` | 4 | 3 | 3/3 |" in md
 
 
 def test_a_replay_that_does_not_fit_its_window_is_refused(tmp_path):
@@ -293,6 +299,7 @@ def test_runs_without_ground_truth_are_left_out_of_the_gains(bench_dir, tmp_path
     s = summarize(out)
     rep = s.replays["manifold"]
     assert (rep.scored_runs, rep.runs, rep.replayed) == (2, 3, 4)
+    assert rep.unreplayed == ()
     assert main(["report", str(out), "--out", str(out / "r.md")]) == 0
     assert "| `manifold` | 2 of 3 |" in (out / "r.md").read_text()
 

@@ -252,6 +252,8 @@ class TrackerReplays:
         (sequence, tracker) that ran with more than one seed.
     disagreements : tuple
         ``(sequence, (seed, lost_at, verdict), (seed, lost_at, verdict))`` of the matched pairs whose verdicts differ.
+    unreplayed : tuple
+        ``(sequence, seed, lost_at)`` of the losses without replays.
     """
 
     tracker: str
@@ -271,6 +273,7 @@ class TrackerReplays:
     unmatched: int
     stability_losses: int
     disagreements: tuple = ()
+    unreplayed: tuple = ()
 
 
 def summarize_replays(runs, trackers) -> dict[str, TrackerReplays]:
@@ -315,6 +318,7 @@ def summarize_replays(runs, trackers) -> dict[str, TrackerReplays]:
             auc=float(np.mean([r.auc for r in scored])) if scored else float("nan"),
             gains=gains, cause_verdict=cause_verdict, pairs=pairs, same=same, unmatched=unmatched,
             stability_losses=stability_losses, disagreements=tuple(disagreements),
+            unreplayed=tuple((r.sequence, r.seed, lr.lost_at) for r, lr in losses if not lr.replayed),
         )
     return out
 
@@ -386,6 +390,12 @@ def render_section(replays: dict[str, TrackerReplays], trackers) -> list[str]:
         ),
         "",
     ]
+    for t in with_replays:
+        un = replays[t].unreplayed
+        if un:
+            more = f" and {len(un) - 12} more" if len(un) > 12 else ""
+            L += [f"Not replayed, `{t}`: " + ", ".join(f"{sq}{_seed(sd)} at {la}" for sq, sd, la in un[:12])
+                  + more + ".", ""]
     if not_replayed:
         L += [(f"{', '.join(f'`{t}`' for t in not_replayed)}: losses but none replayed — {NO_REPLAYS}, "
               "or no checkpoint reached them."), ""]
