@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Regenerate docs/results.md and docs/img/bench_*.png from a full benchmark on the shared sequences:
-# the manifold tracker (the default and the paper's likelihood) and IPCA with 3 seeds, CSRT, KCF and MIL once, every sequence under ROOT.
-# Resumable: run it again after an interruption and finished runs are kept.
+# the manifold tracker (the default and the paper's likelihood) and IPCA with 3 seeds, CSRT, KCF and MIL once, every sequence under ROOT,
+# every loss replayed under each fix (--counterfactual: the report's losses by verdict and what fixing each would gain).
+# Resumable: run it again after an interruption and finished runs are kept (runs kept from a bench without
+# --counterfactual have no replays: delete them, or add --force once).
 #
 #   bash scripts/make_results.sh [ROOT] [RUNS_DIR]
 #
@@ -11,7 +13,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=${1:-../shared/sequences}
 RUNS=${2:-runs/bench}
-covviz bench "$ROOT" --trackers manifold,manifold-paper,ipca,csrt,kcf,mil --seeds 3 --jobs 2 --out "$RUNS" --no-report
+covviz bench "$ROOT" --trackers manifold,manifold-paper,ipca,csrt,kcf,mil --seeds 3 --jobs 2 --counterfactual --out "$RUNS" --no-report
 # The default likelihood's ablation: each change alone and together, seeds 0-5, and its cost (appended to the report).
 python benchmarks/ablation.py "$ROOT" --out "$RUNS-ablation" --seeds 6 --jobs 2 --md "$RUNS-ablation/ablation.md"
 covviz report "$RUNS" --out docs/results.md --append "$RUNS-ablation/ablation.md"

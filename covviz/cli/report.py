@@ -13,6 +13,9 @@ examples:
 
 The report is rebuilt from the result files only; nothing is re-run. Figures go to
 img/ next to the markdown file, each as PNG (linked with a relative path), SVG and PDF.
+For a bench run with --counterfactual it adds, per tracker, the losses by verdict, what
+fixing each kind of failure would gain (ΔAUC per fix) and how stable the verdicts are
+across seeds; those read the sequences' ground truth (at the paths the results name).
 """
 
 def add_report_parser(sub) -> argparse.ArgumentParser:
@@ -21,7 +24,8 @@ def add_report_parser(sub) -> argparse.ArgumentParser:
         help="rebuild the markdown report and figures of a bench from its result files",
         description="Read the results of 'covviz bench' in DIR and write a markdown report: tables per "
         "sequence and overall (success AUC, P@20, r_on_track, rms_on_track, fps; mean ± std over seeds), "
-        "the OTB success and precision plots, and the paper's bar charts (manifold against ipca).",
+        "the OTB success and precision plots, the paper's bar charts (manifold against ipca), the losses by "
+        "cause and, after 'covviz bench --counterfactual', by verdict with what fixing each would gain.",
         epilog=REPORT_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

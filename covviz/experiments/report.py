@@ -5,7 +5,10 @@ written by :func:`covviz.experiments.results.save_result`; never runs a tracker.
 
 * ``report.md``: an overall table and one table per sequence (success AUC,
   P@20, r_on_track, rms_on_track, fps, failed frames; mean ± std over seeds),
-  a success-AUC matrix, and the thresholds used;
+  a success-AUC matrix, and the thresholds used; the losses by diagnosed cause and, for
+  a bench run with ``--counterfactual``, what fixing each kind of failure would gain
+  (:mod:`covviz.experiments.report_counterfactual`: the only part that reads the
+  sequences, for their ground truth);
 * ``img/bench_success.png``, ``img/bench_precision.png``: the OTB success and
   precision plots (curves averaged over sequences);
 * ``img/bench_on_track.png``: the paper's figure, bar charts of the track
@@ -35,6 +38,15 @@ from pathlib import Path
 
 import numpy as np
 
+from covviz.experiments.report_counterfactual import (
+    TrackerReplays,
+    fix_aucs,
+    losses_of,
+    render_section,
+    saved_boxes,
+    success_auc,
+    summarize_replays,
+)
 from covviz.experiments.results import READABLE_FORMATS, ResultError, load_result, read_manifest
 from covviz.metrics import IOU_THRESHOLDS, ON_TRACK_GAMMA, PRECISION_AT, PRECISION_THRESHOLDS
 
@@ -85,6 +97,9 @@ class Run:
     causes: tuple = ()  # the diagnosed cause of each loss (covviz.diagnosis.drift)
     losses: tuple = ()  # (drift began, lost at) of each loss, 1-based frames
     suspects: tuple = ()  # frames of the label-free suspects
+    loss_replays: tuple = ()  # each loss with its counterfactual replays (report_counterfactual.LossReplay)
+    auc: float = float("nan")  # success AUC from the saved boxes (nan: not computed, or no ground truth)
+    fixed_auc: dict = field(default_factory=dict)  # fix -> AUC with the losses' windows replayed under it
 
 
 def _diagnosis_fields(found: dict | None) -> dict:
@@ -175,10 +190,11 @@ def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
     if foreign:
         log.warning("%s: skipped %d JSON file(s) that are not covviz results (%s%s)", d, len(foreign),
                     foreign[0], " …" if len(foreign) > 1 else "")
+    boxes_of: list[tuple] = []  # per run: its boxes (0-based) and the sequence's path
     for js in files:
         if js in foreign:
             continue
-        doc, _boxes = load_result(js)
+        doc, boxes = load_result(js)
         if trackers is not None and doc.get("tracker") not in trackers:
             continue
         if doc.get("interrupted"):
@@ -215,13 +231,56 @@ def load_runs(results_dir: str | Path) -> tuple[dict | None, list[Run], dict]:
                 success=succ,
                 precision=prec,
                 **_diagnosis_fields(doc.get("diagnosis")),
+                loss_replays=losses_of(doc.get("diagnosis"), len(boxes), js),
             )
         )
+        boxes_of.append((boxes, (doc.get("bench") or {}).get("path")))
     if not runs:
         raise ResultError(
             f"{d}: no results to report (expected <sequence>/<tracker>.json files from covviz bench)"
         )
-    return manifest, runs, thr
+    return manifest, _with_fix_aucs(runs, boxes_of, manifest), thr
+
+
+def _with_fix_aucs(runs: list[Run], boxes_of: list, manifest: dict | None) -> list[Run]:
+    """The runs of every tracker with replays, with their own AUC and the AUC under each fix
+    (:mod:`covviz.experiments.report_counterfactual`); needs the sequences' ground truth."""
+    replayed = {r.tracker for r in runs if any(lr.replayed for lr in r.loss_replays)}
+    if not replayed:
+        return runs
+    from covviz.data.sequences import SequenceError, open_sequence
+
+    cache: dict = {}
+    warned: set = set()
+
+    def truth(sequence: str, path: str | None, n: int) -> np.ndarray | None:
+        cands = [p for p in (path, str(Path(manifest["root"]) / sequence) if (manifest or {}).get("root") else None)
+                 if p]
+        for p in cands:
+            if p not in cache:
+                try:
+                    cache[p] = np.asarray(open_sequence(p).groundtruth, dtype=np.float64)
+                except (SequenceError, OSError):
+                    cache[p] = None
+            if cache[p] is not None:
+                gt = np.full((n, 4), np.nan)
+                m = min(n, len(cache[p]))
+                gt[:m] = cache[p][:m]
+                return gt
+        if sequence not in warned:
+            warned.add(sequence)
+            log.warning("%s: ground truth not found (%s); its runs are left out of the replays' AUC table",
+                        sequence, ", ".join(cands) or "no path in the results")
+        return None
+
+    out = []
+    for r, (boxes, path) in zip(runs, boxes_of):
+        gt = truth(r.sequence, path, len(boxes)) if r.tracker in replayed else None
+        if gt is not None:
+            b = saved_boxes(boxes)
+            r = replace(r, auc=success_auc(b, gt), fixed_auc=fix_aucs(b, gt, r.loss_replays))
+        out.append(r)
+    return out
 
 
 # --------------------------------------------------------------------------- #
@@ -339,6 +398,8 @@ class Summary:
         ``(sequence, tracker) -> {cause: losses}`` over seeds.
     suspects : dict
         ``tracker -> covviz.diagnosis.drift.score_suspects`` totals over every run.
+    replays : dict
+        ``tracker -> report_counterfactual.TrackerReplays``: the counterfactual replays of its losses.
     """
 
     results_dir: Path
@@ -357,6 +418,7 @@ class Summary:
     causes: dict = field(default_factory=dict)
     causes_by_sequence: dict = field(default_factory=dict)
     suspects: dict = field(default_factory=dict)
+    replays: dict[str, TrackerReplays] = field(default_factory=dict)
 
 
 def frames_tracked(summary: Summary, sequence: str) -> str:
@@ -487,6 +549,7 @@ def summarize(results_dir: str | Path) -> Summary:
         causes=causes,
         causes_by_sequence=by_seq,
         suspects=suspects,
+        replays=summarize_replays(runs, trackers),
     )
 
 
@@ -649,6 +712,7 @@ def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
         L += [f"Needs `{OURS}` or `{BASELINE}` results; this bench has neither.", ""]
 
     L += _failure_section(summary)
+    L += render_section(summary.replays, summary.trackers)
     L += ["## Success AUC per sequence", ""]
     L += [
         "| sequence | frames | " + " | ".join(f"`{t}`" for t in trackers) + " |",
@@ -924,8 +988,46 @@ def render_latex(summary: Summary) -> str:
         L.append(f"{_tex(s)} & {summary.seq_frames.get(s, '?')} & " + " & ".join(cells) + r" \\")
     L += [r"\bottomrule", r"\end{tabular}", r"\caption{Success AUC per sequence.}",
           r"\label{tab:covviz-auc}", r"\end{table}", ""]
+    L += _latex_replays(summary)
     for s in summary.sequences:
         if summary.per_sequence.get(s):
             L += _latex_table(summary.per_sequence[s], f"{_tex(s)} ({frames_tracked(summary, s)}).",
                               f"tab:covviz-{''.join(c if c.isalnum() else '-' for c in s)}")
     return "\n".join(L)
+
+
+def _latex_replays(summary: Summary) -> list[str]:
+    """The counterfactual replays' two main tables in LaTeX: losses by verdict, and ΔAUC per fix (none without replays)."""
+    from covviz.experiments.report_counterfactual import GAIN_FIXES, VERDICTS, fmt_delta
+
+    reps = summary.replays
+    ts = [t for t in summary.trackers if t in reps and reps[t].replayed]
+    if not ts:
+        return []
+    cols = [v for v in VERDICTS if any(v in reps[t].verdicts for t in ts)]
+    fixes = [f for f in GAIN_FIXES if any(f in reps[t].gains for t in ts)]
+    tt = lambda t: r"\texttt{" + _tex(t) + "}"
+    L = [r"\begin{table}[t]", r"\centering", r"\small", r"\begin{tabular}{lrrr" + "r" * len(cols) + "}",
+         r"\toprule", " & ".join(["tracker", "losses", "replayed", r"\texttt{none} identical", *cols]) + r" \\",
+         r"\midrule"]
+    for t in ts:
+        r = reps[t]
+        ident = f"{r.none_identical}/{r.none_replays}" if r.none_replays else "--"
+        L.append(" & ".join([tt(t), str(r.losses), str(r.replayed), ident,
+                             *(str(r.verdicts.get(v, 0)) for v in cols)]) + r" \\")
+    L += [r"\bottomrule", r"\end{tabular}",
+          r"\caption{Losses by verdict: the smallest oracle fix whose replay kept the track.}",
+          r"\label{tab:covviz-verdicts}", r"\end{table}", ""]
+    L += [r"\begin{table}[t]", r"\centering", r"\small", r"\begin{tabular}{lrr" + "r" * len(fixes) + "}",
+          r"\toprule", " & ".join(["tracker", "runs", "AUC", *(r"$\Delta$" + _tex(f) for f in fixes)]) + r" \\",
+          r"\midrule"]
+    for t in ts:
+        r = reps[t]
+        cells = [_tex(fmt_delta(r.gains[f])) if f in r.gains else "--" for f in fixes]
+        L.append(" & ".join([tt(t), str(r.scored_runs), f"{r.auc:.3f}" if np.isfinite(r.auc) else "--", *cells])
+                 + r" \\")
+    L += [r"\bottomrule", r"\end{tabular}",
+          (r"\caption{What fixing each kind of failure would gain: success AUC with every loss's replayed window "
+          r"replaced by its replay under the fix, minus the run's own (mean over runs).}"),
+          r"\label{tab:covviz-gains}", r"\end{table}", ""]
+    return L
