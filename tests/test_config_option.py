@@ -66,7 +66,7 @@ def test_track_runs_the_config_of_the_file(root, tmp_path, monkeypatch, tracker)
         ('{"kinematics": {"pos_sigma": [0.1]}}', "KinematicModel.pos_sigma must be two numbers"),
         ('{"kinematics": {"speed": 1}}', "unknown KinematicModel field(s) speed"),
         ('{"n_particles": 12.5}', "ManifoldConfig.n_particles must be an integer"),
-        ('{"patch_size": 2000}', "ObservationConfig.patch_size must be an integer in [4, 256]"),
+        ('{"patch_size": 2000}', "ObservationConfig.patch_size must be an integer in [4, 128]"),
         ('{"observation": {"colour_weight": -1}}', "ObservationConfig.colour_weight must be a number >= 0"),
         ('{"quadrants": false, "observation": {"quadrants": true}}', "given both flat and inside"),
     ],

@@ -98,7 +98,7 @@ def test_the_verdict_lane_holds_each_loss_verdict_until_its_replay_ends(two):
     verdict = {f: v[-1] for f, v in t[p.story_lane("verdict")]["StateChange:state"].items()}
     assert verdict[lost[0]] == ["search"]
     assert verdict[lost[0] + 3] == []  # a null state after the replay's last frame: a gap in the lane
-    rows = [r[0] for v in t[p.events]["TextLog:text"].values() for r in v if "verdict" in r[0]]
+    rows = [r[0] for v in t[p.events]["TextLog:text"].values() for r in v if " · verdict " in r[0].split("\n")[0]]
     assert rows and rows[0].split("\n")[0].startswith(f"[identity] LOST {lost[0]} · ")
     assert "verdict SEARCH" in rows[0].split("\n")[0]
 
