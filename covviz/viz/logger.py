@@ -838,14 +838,8 @@ class RerunLogger(Observer):
             # The views back to the drift onset, and on for a few frames.
             self._redo_around(s, d.drift_began - 1 - self.config.diagnosis.look_before, d.lost_at - 1)
             s.dense_until = max(s.dense_until, int(frame.index) + self.config.dense_after)
-        for sp in found.suspects:
-            head = story.headline(f"{self._who(s)}SUSPECT {sp.frame}", sp.kind.replace("_", " "))
-            rec.log(p.events, rr.TextLog(viewer_safe(story.row(head, f"[{s.name}] suspect - {sp.text}")), level="WARN"))
-            self._event_record(s, "suspect", sp.frame, "WARN", sp.text, cause=sp.kind)
-            iou_now = found.evidence.iou
-            if np.isfinite(iou_now):
-                rec.log(p.marker("suspect"), rr.Scalars(iou_now))
-            s.dense_until = max(s.dense_until, int(frame.index) + self.config.dense_after)
+        # The old label-free suspects are inputs of the drift detector now (its alarms replace them in
+        # Events, covviz.viz.drift); they stay in the results JSON (diagnosis.suspects), not as rows here.
 
     def _who(self, s: _TrackerState) -> str:
         """``[name] `` before a headline in a recording of several trackers (the Events' path column is cut)."""
