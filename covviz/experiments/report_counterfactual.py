@@ -383,9 +383,9 @@ def render_section(replays: dict[str, TrackerReplays], trackers) -> list[str]:
         "",
         (
             "*replayed*: the losses with replays. A loss is replayed from a checkpoint of its run's state at or "
-            "before the frame the replay starts on; the runner keeps checkpoints of the last "
-            "`CounterfactualConfig.every · keep` frames of the run only (a bounded memory), so on a long "
-            "sequence an early loss may have none left and is not replayed. *`none` identical*: of the "
+            "before the frame the replay starts on; the runner keeps a bounded memory of them "
+            "(`covviz.runner.CheckpointRing`: dense for the recent past, sparse further back), so a loss "
+            "older than the sparse ring's reach has none left and is not replayed. *`none` identical*: of the "
             "replayed losses with an unchanged replay, those that reproduced the run (— : restarts only)."
         ),
         "",
