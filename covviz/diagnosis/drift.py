@@ -627,7 +627,13 @@ def scale_ratio_of(ev: dict) -> float:
     """The largest size ratio (estimate over truth, or its inverse) of the window."""
     r = ev.get("scale_ratio", float("nan"))
     held = max(r, 1 / r) if np.isfinite(r) and r > 0 else float("nan")
-    return float(np.nanmax([held, ev.get("scale_ratio_max", float("nan"))]))
+    return _nanmax(held, ev.get("scale_ratio_max", float("nan")))
+
+
+def _nanmax(*values: float) -> float:
+    """The largest finite value, ``nan`` if none is."""
+    v = [x for x in values if np.isfinite(x)]
+    return float(max(v)) if v else float("nan")
 
 
 def _nanmedian(values) -> float:
@@ -664,10 +670,10 @@ def _strengths(ev: dict, look, cfg: DiagnosisConfig, hold_c: float, jump: float)
         "distractor": 2.0 - est / look_thr if np.isfinite(est) and look_thr > 0 else float("nan"),
         # some quadrants changed while another held; or the scene that stood there before shows at the
         # target's place (a distance that had to stay below hold_c)
-        "occlusion": float(np.nanmax([
+        "occlusion": _nanmax(
             ratio(ev.get("quadrant_change_max", float("nan")), jump),
             2.0 - ev["scene_distance"] / hold_c if ("scene_frame" in ev and hold_c > 0) else float("nan"),
-        ])),
+        ),
         "appearance": ratio(ev.get("target_change_max", float("nan")),
                             max(cfg.appearance_change, cfg.noise_factor * look.noise_c)),
         "impoverishment": ratio(ev.get("frames_ess_low", float("nan")), cfg.impoverished_frames),
