@@ -284,3 +284,11 @@ def test_log_likelihood_does_not_underflow_for_far_particles():
     assert np.all(np.isfinite(ll))
     w = np.exp(normalize_log_weights(ll))
     assert w[0] == pytest.approx(1.0) and 0 <= w[1] < 1e-100
+
+
+def test_heaviest_are_the_fewest_particles_holding_the_mass():
+    from covviz.model.particles import heaviest
+
+    lw = np.log(np.array([0.1, 0.5, 0.05, 0.3, 0.05]))
+    assert heaviest(lw, 0.85).tolist() == [1, 3, 0]  # 0.5 + 0.3 fall short of 0.85, + 0.1 reach it
+    assert heaviest(lw, 0.5).tolist() == [1] and len(heaviest(lw, 1.0)) == 5

@@ -139,31 +139,13 @@ def _print_alarms(found: dict | None, every: bool) -> None:
         print(f"  {len(alarms)} label-free drift alarm(s) (first at frame {alarms[0]['frame']}); "
               "diagnosis.alarms in the results JSON")
 
-def _drift_observer(watch, recorders):
-    """The detector, and after it (when the run is recorded) the logger of its probability and alarms."""
-    stream = _stream_of(recorders)
-    if stream is None:
-        return watch
-    from covviz.runner import Pipeline
-    from covviz.viz.drift import DriftRecorder
-
-    return Pipeline([watch, DriftRecorder(stream)])
-
-
-def _stream_of(recorders):
-    """The recording stream of ``track``'s recorder pipeline (None without a recording)."""
-    from covviz.viz.logger import RerunLogger
-
-    for ob in recorders:
-        for stage in getattr(ob.observer, "observers", ()):
-            if isinstance(stage, RerunLogger):
-                return stage.stream
-    return None
-
 def _recording_observers(
-    args, seq, n_frames: int, stages: list, created: list[Path] | None = None, locks=None
+    args, seq, n_frames: int, stages: list, created: list[Path] | None = None, locks=None, watch=None
 ) -> tuple[list, Path | None]:
     """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file.
+
+    ``watch``: the label-free drift detector, on a thread of its own before the diagnosis' (whose
+    recorder closes the stream, so it ends last), with the logger of its probability when recorded.
 
     ``stages``: the observers before it (the drift diagnosis, the replays of its losses), run with
     it on one background thread; without a recording, they run there alone.
@@ -184,7 +166,8 @@ def _recording_observers(
     if locks is not None:
         locks.enter_context(_hold_outputs(args, seq, save, created))
     if save is None and not live:
-        return [BackgroundObserver(Pipeline(stages))], None  # the diagnosis alone, on its own thread
+        drift = [] if watch is None else [BackgroundObserver(watch)]
+        return [*drift, BackgroundObserver(Pipeline(stages))], None  # the diagnosis alone, on its own thread
     from covviz.viz.logger import LoggerConfig, RerunLogger
     from covviz.viz.sinks import BATCH_SECONDS, BATCH_SECONDS_LIVE, attach_sinks, new_recording
 
@@ -204,7 +187,12 @@ def _recording_observers(
     # The diagnosis (and the replays of its losses, after the last frame), then the recorder that
     # shows what they found, on one thread of their own that overlaps the tracker
     # (runner.BackgroundObserver); the results writer comes after them.
-    return [BackgroundObserver(Pipeline([*stages, RerunLogger(stream, config, run_info=info)]))], save
+    drift = []
+    if watch is not None:
+        from covviz.viz.drift import DriftRecorder
+
+        drift = [BackgroundObserver(Pipeline([watch, DriftRecorder(stream)]))]
+    return [*drift, BackgroundObserver(Pipeline([*stages, RerunLogger(stream, config, run_info=info)]))], save
 
 def _hold_outputs(args, seq, save: Path | None, created: list[Path] | None):
     """The locks of the run's outputs: each tracker's results, and the recording (:func:`covviz.locks.hold_outputs`)."""
@@ -294,14 +282,14 @@ def _track(args) -> int:
         watch = drift_watch(args.detector)  # the label-free drift probability and alarms
         # Last of the checks (an unwritable file, a viewer that is not there, an output another run
         # is writing), then the file is opened.
-        recorders, rrd = _recording_observers(args, seq, n_frames, stages, created, locks)
+        recorders, rrd = _recording_observers(args, seq, n_frames, stages, created, locks, watch)
     except BaseException:
         locks.close()
         _remove_empty(created)
         raise
     try:
         with locks:
-            return _run_tracking(args, seq, trackers, replays, recorders, rrd, created, watch)
+            return _run_tracking(args, seq, trackers, replays, recorders, rrd, created)
     finally:
         _remove_empty(created)  # those the lock files alone kept (a run stopped before its first write)
 
@@ -319,11 +307,11 @@ def _counterfactuals(args, seq, n_frames: int, trackers):
                  for name in args.trackers]
     return Counterfactuals(trackers, factories)
 
-def _run_tracking(args, seq, trackers, replays, recorders, rrd, created, watch=None) -> int:
+def _run_tracking(args, seq, trackers, replays, recorders, rrd, created) -> int:
     from covviz.api import run_trackers  # shared with covviz.track: warm the kernels, run, close the trackers
     from covviz.experiments.results import ResultWriter
     from covviz.metrics import nothing_to_score
-    from covviz.runner import BackgroundObserver, FreeSpaceGuard, ResultCollector
+    from covviz.runner import FreeSpaceGuard, ResultCollector
     from covviz.signals import exit_code
 
     # The results are on disk while the run goes (every second, and at the end): what a kill, a
@@ -333,9 +321,7 @@ def _run_tracking(args, seq, trackers, replays, recorders, rrd, created, watch=N
     writer = ResultWriter(args.out)
     guard = FreeSpaceGuard([args.out, *([rrd] if rrd is not None else [])])
     collector = ResultCollector()
-    # The detector on a thread of its own, before the diagnosis' (whose recorder closes the stream last).
-    drift = [] if watch is None else [BackgroundObserver(_drift_observer(watch, recorders))]
-    observers = [*getattr(args, "observers", []), guard, *drift, *recorders, writer, collector]
+    observers = [*getattr(args, "observers", []), guard, *recorders, writer, collector]
     where = args.out / seq.name
     t0 = time.perf_counter()
     code = 0

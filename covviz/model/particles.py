@@ -15,6 +15,7 @@ import numpy as np
 __all__ = [
     "ParticleSet",
     "effective_sample_size",
+    "heaviest",
     "log_likelihood",
     "logsumexp",
     "mmse",
@@ -88,6 +89,13 @@ def normalize_log_weights(lw: np.ndarray) -> np.ndarray:
 def effective_sample_size(lw: np.ndarray) -> float:
     """``1 / Σ w_i²`` of normalised log-weights: between 1 and ``n``."""
     return float(np.exp(-logsumexp(2.0 * np.asarray(lw))))
+
+
+def heaviest(lw: np.ndarray, mass: float) -> np.ndarray:
+    """Indices of the fewest particles that hold ``mass`` of the weight, heaviest first (ties by index)."""
+    w = np.exp(np.asarray(lw, dtype=np.float64) - np.max(lw))
+    order = np.argsort(-w, kind="stable")
+    return order[: int(np.searchsorted(np.cumsum(w[order]) / w.sum(), mass)) + 1]
 
 
 def log_likelihood(d: np.ndarray, sigma: float) -> np.ndarray:

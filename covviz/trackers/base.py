@@ -82,6 +82,10 @@ class Intervention:
         return None
 
 
+#: The estimate fix (:meth:`Intervention.estimate`) chooses among the particles that hold this share of the weight.
+ESTIMATE_MASS = 0.9
+
+
 class SnapshotUnsupported(RuntimeError):
     """This tracker's state cannot be saved and restored (OpenCV's trackers keep theirs in C++)."""
 

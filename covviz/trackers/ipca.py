@@ -100,9 +100,9 @@ import numpy as np
 
 from covviz.model.features import REMAP_MAX_ROWS, remap_stacked
 from covviz.model.image import check_init_box, to_gray
-from covviz.model.particles import effective_sample_size, normalize_log_weights
+from covviz.model.particles import effective_sample_size, heaviest, normalize_log_weights
 from covviz.records import FrameRecord
-from covviz.trackers.base import Intervention
+from covviz.trackers.base import ESTIMATE_MASS, Intervention
 
 __all__ = [
     "GRIDS",
@@ -708,9 +708,7 @@ class IPCATracker:
         logw = normalize_log_weights(-err / cfg.condenssig)
         best = int(np.argmax(logw))
         if hook is not None:  # the estimate fix: another particle among those holding 90% of the weight
-            w = np.exp(logw - logw.max())
-            order = np.argsort(-w, kind="stable")
-            cand = order[: int(np.searchsorted(np.cumsum(w[order]) / w.sum(), 0.9)) + 1]
+            cand = heaviest(logw, ESTIMATE_MASS)
             j = hook.estimate(self._index, state_to_box(states[cand], cfg.patch_size))
             best = best if j is None else int(cand[j])
         look = None if hook is None else hook.appearance(self._index)

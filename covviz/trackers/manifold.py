@@ -89,6 +89,7 @@ from covviz.model.observation import (
 from covviz.model.particles import (
     ParticleSet,
     effective_sample_size,
+    heaviest,
     mmse,
     multinomial_resample,
     normalize_log_weights,
@@ -96,7 +97,7 @@ from covviz.model.particles import (
 )
 from covviz.model.spd import logdet, logm
 from covviz.records import FrameInputs, FrameRecord, Likelihood, PoseSearch
-from covviz.trackers.base import Intervention
+from covviz.trackers.base import ESTIMATE_MASS, Intervention
 
 __all__ = ["MANIFOLD_SPECS", "ManifoldConfig", "ManifoldState", "ManifoldTracker"]
 
@@ -801,17 +802,10 @@ def _concat_observations(a, b):
     )
 
 
-#: The estimate fix chooses among the particles that hold this share of the weight.
-ESTIMATE_MASS = 0.9
-
-
 def _chosen_estimate(hook: Intervention, index: int, states, lw, base_wh) -> int | None:
     """The particle an intervention reports instead of the MMSE estimate, among those holding
-    :data:`ESTIMATE_MASS` of the weight (None: the estimator's own)."""
-    w = np.exp(lw - lw.max())
-    order = np.argsort(-w, kind="stable")
-    c = np.cumsum(w[order]) / w.sum()
-    cand = order[: int(np.searchsorted(c, ESTIMATE_MASS)) + 1]
+    :data:`~covviz.trackers.base.ESTIMATE_MASS` of the weight (None: the estimator's own)."""
+    cand = heaviest(lw, ESTIMATE_MASS)
     j = hook.estimate(index, pose_to_box(states[cand][:, POSE], base_wh))
     return None if j is None else int(cand[j])
 
