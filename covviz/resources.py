@@ -23,6 +23,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from covviz.data.prefetch import AHEAD
+
 __all__ = ["available_memory", "run_memory"]
 
 #: Python, numpy, OpenCV, the compiled kernels (and Rerun, with a recording), bytes (measured 227 / 420 MB).
@@ -31,9 +33,10 @@ BASE_BYTES_RECORDING = 450_000_000
 #: Per particle and particle tracker, bytes (measured 13.2 KB; 48.8 KB with a recording).
 PARTICLE_BYTES = 15_000
 PARTICLE_BYTES_RECORDING = 55_000
-#: Frames' worth of RGB pixels held at once (measured ~9; ~20 with a recording).
-FRAMES_HELD = 12
-FRAMES_HELD_RECORDING = 28
+#: Frames' worth of RGB pixels held at once (measured ~9; ~20 with a recording, before the frames were
+#: read ahead), and those read ahead (:mod:`covviz.data.prefetch`: ``AHEAD`` queued, one being read).
+FRAMES_HELD = 12 + AHEAD + 1
+FRAMES_HELD_RECORDING = 28 + AHEAD + 1
 #: Resident memory a recorded run gains per frame after warm-up (Rerun's native side), bytes.
 RECORDING_BYTES_PER_FRAME = 20_000
 

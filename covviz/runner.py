@@ -12,6 +12,11 @@ and no observer reaches into another's state or asks the tracker anything:
 what they know of each tracker (name, config, frozen observation model) comes
 once, in :class:`RunStart`, after the trackers' ``init`` on the first frame.
 
+The frames are read and decoded on a background thread, up to ``prefetch``
+frames ahead of the trackers (:class:`covviz.data.prefetch.Prefetcher`), in
+order: decoding overlaps tracking, the boxes are those of reading in place, and
+a frame that cannot be read stops the run at that frame with its own error.
+
 A Ctrl-C or an exception inside the tracker stops the loop; observers still get
 ``on_end`` with the frames done so far (``result.interrupted`` is True), so a
 recording holds every frame logged before the interruption. The exception is
@@ -43,6 +48,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from covviz.data.frames import Frame, Sequence
+from covviz.data.prefetch import AHEAD, Prefetcher
 from covviz.errors import WriteError
 from covviz.records import FrameRecord, RunResult
 from covviz.signals import shielded
@@ -358,6 +364,7 @@ def run_many(
     progress: bool = False,
     seeds: Seq[int | None] | None = None,
     checkpoints: tuple[int, ...] | None = None,
+    prefetch: int = AHEAD,
 ) -> list[RunResult]:
     """Run several trackers side by side on the same frames (each frame read once).
 
@@ -378,6 +385,11 @@ def run_many(
     checkpoints : tuple of int, optional
         The :class:`CheckpointRing` arguments (``every, keep[, long_every, long_keep]``) of each
         snapshot-capable tracker's states (in :attr:`RunStart.checkpoints`); None: none kept.
+    prefetch : int
+        Frames read and decoded ahead on a background thread while the trackers work
+        (:class:`covviz.data.prefetch.Prefetcher`: same frames, same order, a broken frame's
+        error at that frame); 0: each frame read in this thread when its turn comes. Either way
+        ``sequence.frame`` is called once per frame, in order, never twice at a time.
 
     Returns
     -------
@@ -422,10 +434,11 @@ def run_many(
     bar = None
     started: list[Observer] = []
     found = NOTHING
+    frames = Prefetcher(sequence.frame, n, ahead=prefetch, name="covviz-frames")
     try:
         bar = _progress(n, f"{sequence.name}", progress)
         for i in range(n):
-            frame = sequence.frame(i)
+            frame = next(frames)
             if frame.gt is not None:
                 gt[i] = frame.gt
             records = []
@@ -485,6 +498,8 @@ def run_many(
         stopped_by = exc
         raise
     finally:
+        with shielded():  # the reader thread ends before the observers' on_end (the replays read frames too)
+            frames.close()
         if bar is not None:
             bar.close()
         if not infos:  # stopped before the first frame was tracked
@@ -518,6 +533,7 @@ def _end(observers, results, found: Findings, failing: BaseException | None) -> 
 
 
 def run(tracker, sequence: Sequence, observers: Iterable = (), max_frames=None, progress=False, seed=None,
-        checkpoints: tuple[int, int] | None = None):
+        checkpoints: tuple[int, int] | None = None, prefetch: int = AHEAD):
     """Run one tracker over a sequence; see :func:`run_many`. Returns a :class:`RunResult`."""
-    return run_many([tracker], sequence, observers, max_frames, progress, seeds=[seed], checkpoints=checkpoints)[0]
+    return run_many([tracker], sequence, observers, max_frames, progress, seeds=[seed], checkpoints=checkpoints,
+                    prefetch=prefetch)[0]

@@ -1,9 +1,10 @@
-"""The runner's observer plumbing: BackgroundObserver and interruption semantics."""
+"""The runner's observer plumbing: BackgroundObserver, interruption semantics, frames read ahead."""
 
 from __future__ import annotations
 
 import threading
 
+import numpy as np
 import pytest
 
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
@@ -149,3 +150,62 @@ def test_the_checkpoint_ring_is_dense_recently_and_sparse_far_back():
     assert ring.at_or_before(379) == (350, "s350")  # older than the dense ring: the sparse one reaches it
     assert ring.at_or_before(260) == (250, "s250") and ring.at_or_before(249) is None  # beyond both
     assert not ring.due(7) and ring.due(10) and ring.due(50)
+
+
+class _BreaksAt(SyntheticSequence):
+    """A synthetic sequence whose frame ``k`` cannot be read; notes the frames read and the threads reading them."""
+
+    def __init__(self, k: int, n: int = 25) -> None:
+        super().__init__(SyntheticConfig(n_frames=n))
+        self.k, self.read, self.readers = k, [], set()
+
+    def _read(self, i):
+        from covviz.data.frames import SequenceError
+
+        self.read.append(i)
+        self.readers.add(threading.get_ident())
+        if i == self.k:
+            raise SequenceError(f"cannot read image {i + 1:04d}.jpg: the JPEG file is truncated")
+        return super()._read(i)
+
+
+def _frame_threads() -> list[threading.Thread]:
+    return [t for t in threading.enumerate() if t.name == "covviz-frames"]
+
+
+@pytest.mark.parametrize("prefetch", [0, 4])
+def test_a_broken_frame_stops_the_run_at_that_frame_with_its_error(prefetch):
+    from covviz.data.frames import SequenceError
+
+    seq = _BreaksAt(7)
+    inner, collector = Recorder(), ResultCollector()
+    with pytest.raises(SequenceError, match=r"^cannot read image 0008\.jpg: the JPEG file is truncated$"):
+        run(IdentityTracker(), seq, [BackgroundObserver(inner), collector], prefetch=prefetch)
+    assert inner.frames == list(range(7)) and inner.ended == [7]  # the frames before it, all observed
+    assert len(collector.results[0].boxes) == 7 and collector.results[0].interrupted
+    assert seq.read == list(range(8))  # nothing read past it
+    assert not _frame_threads()
+    assert (threading.get_ident() in seq.readers) == (prefetch == 0)  # decoded off the tracking thread
+
+
+def test_prefetched_frames_give_the_boxes_of_frames_read_in_place():
+    from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
+
+    seq = SyntheticSequence(SyntheticConfig(n_frames=15))
+    cfg = ManifoldConfig().replace(n_particles=60, threads=1)
+    boxes = [run(ManifoldTracker(cfg, rng=0), seq, prefetch=p).boxes for p in (0, 1, 4)]
+    assert all(np.array_equal(b, boxes[0]) for b in boxes[1:])
+
+
+def test_an_interrupted_run_leaves_no_reader_thread():
+    class Interrupts(IdentityTracker):
+        def update(self, frame):
+            if self._index == 4:
+                raise KeyboardInterrupt
+            return super().update(frame)
+
+    collector = ResultCollector()
+    with pytest.raises(KeyboardInterrupt):
+        run(Interrupts(), SyntheticSequence(SyntheticConfig(n_frames=200)), [collector], prefetch=2)
+    assert not _frame_threads()  # joined before on_end, not left reading the other 190 frames
+    assert len(collector.results[0].boxes) == 5 and collector.results[0].interrupted
