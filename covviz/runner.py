@@ -240,7 +240,7 @@ class BackgroundObserver(Observer):
     frames are never mutated after they are handed over, so nothing is copied.
     ``on_end`` waits until every queued frame is done (an interrupted run keeps
     all of them), then calls the wrapped ``on_end``. An exception in the worker
-    is raised again in the tracking thread at the next call.
+    is raised again in the tracking thread at the next call; no frame after it is observed.
 
     Parameters
     ----------
@@ -259,6 +259,7 @@ class BackgroundObserver(Observer):
         self.observer = observer
         self._queue: queue.Queue = queue.Queue(maxsize=maxsize)
         self._error: BaseException | None = None
+        self._failed = False  # stays set once the error is handed over: no frame is observed after it
         self._thread: threading.Thread | None = None
 
     def _work(self) -> None:
@@ -267,9 +268,10 @@ class BackgroundObserver(Observer):
             try:
                 if item is self._STOP:
                     return
-                if self._error is None:
+                if not self._failed:
                     self.observer.on_frame(*item)
             except BaseException as exc:  # noqa: BLE001 - handed to the tracking thread
+                self._failed = True
                 self._error = exc
             finally:
                 self._queue.task_done()
@@ -281,6 +283,7 @@ class BackgroundObserver(Observer):
 
     def on_start(self, start, found):
         found = self.observer.on_start(start, found) or found
+        self._error, self._failed = None, False
         self._thread = threading.Thread(target=self._work, name="covviz-observer", daemon=True)
         self._thread.start()
         return found
