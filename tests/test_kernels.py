@@ -441,3 +441,23 @@ def test_tracker_observes_the_same_with_and_without_jit(monkeypatch, quadrants):
     if quadrants:
         np.testing.assert_allclose(a.likelihood.quadrant_distances, b.likelihood.quadrant_distances, atol=2e-3)
     assert a.timings["warp"] == 0.0 and a.timings["features"] > 0.0
+
+
+def test_warmup_compiles_every_signature_the_tracker_and_a_restore_use():
+    """After warmup(), tracking (read-only quadrant references) and a restored snapshot (read-only
+    templates) compile nothing more: the first frames of a run are not slowed by a compilation."""
+    if not kernels.JIT_ENABLED:
+        pytest.skip("the compiled kernels are off")
+    from covviz.data.sequences import SyntheticSequence
+
+    kernels.warmup()
+    before = {d.__name__: set(d.signatures) for d in kernels._ENTRY_POINTS}
+    seq = SyntheticSequence()
+    with ManifoldTracker(ManifoldConfig(n_particles=40), rng=0) as tr:
+        tr.init(seq.frame(0).image, seq.init_box)
+        for i in range(1, 4):
+            tr.update(seq.frame(i).image)
+        tr.restore(tr.snapshot())
+        tr.update(seq.frame(4).image)
+    new = {d.__name__: set(d.signatures) - before[d.__name__] for d in kernels._ENTRY_POINTS}
+    assert not any(new.values()), new

@@ -1081,6 +1081,11 @@ def _warmup_calls():
     C, Q = warp_descriptors_fast(gray, poses, (16.0, 16.0), 8, 1.0, 1e-3, True, True)
     template_distances_fast(np.zeros((2, 9, 9)), C)
     quadrant_distances_fast(Q, Q[0], np.zeros(4))
+    # The frozen model's quadrant references and a restored snapshot's templates are read-only
+    # arrays, which numba compiles as another signature: warm those too, or the first frames compile.
+    ro = lambda a: np.frombuffer(np.ascontiguousarray(a).tobytes(), dtype=a.dtype).reshape(a.shape)
+    template_distances_fast(ro(np.zeros((2, 9, 9))), C)
+    quadrant_distances_fast(Q, ro(Q[0]), ro(np.zeros(4)))
 
 
 def kernels_cached() -> bool:
