@@ -115,7 +115,8 @@ def versions() -> dict:
     """What produced a result: covviz, numpy, Python, and the compiled kernels' numba, llvmlite and CPU target.
 
     Boxes are bit-identical for a seed on one machine (any thread count, any observers); the kernels
-    are compiled for the host CPU (``cpu_target``, or ``NUMBA_CPU_NAME`` when set), so another CPU
+    are compiled for the host CPU (``cpu_target``, or ``NUMBA_CPU_NAME`` when set, with a note when
+    ``NUMBA_CPU_FEATURES`` sets the features too), so another CPU
     may differ in the last bits. ``cpu_target`` is None when this process ran no compiled kernel.
     """
     from importlib import metadata
@@ -134,7 +135,12 @@ def versions() -> dict:
 def _cpu_target() -> str:
     from llvmlite import binding
 
-    return os.environ.get("NUMBA_CPU_NAME") or binding.get_host_cpu_name()
+    name = os.environ.get("NUMBA_CPU_NAME") or binding.get_host_cpu_name()
+    features = os.environ.get("NUMBA_CPU_FEATURES")
+    if features:  # a name alone keeps the host's features (AVX-512 included): say which were turned off
+        off = sorted(f[1:] for f in features.split(",") if f.startswith("-"))
+        name += f" (features set: {len(off)} off{', e.g. ' + ', '.join(off[:3]) if off else ''})"
+    return name
 
 
 def save_result(result: RunResult, out_dir: str | Path, extra: dict | None = None, *,
