@@ -98,7 +98,7 @@ from covviz.model.particles import (
     systematic_resample,
 )
 from covviz.model.spd import logdet, logm
-from covviz.records import FrameInputs, FrameRecord, Likelihood, PoseSearch
+from covviz.records import Diffusion, FrameInputs, FrameRecord, Likelihood, PoseSearch
 from covviz.trackers.base import ESTIMATE_MASS, Intervention
 
 __all__ = ["MANIFOLD_SPECS", "ManifoldConfig", "ManifoldState", "ManifoldTracker"]
@@ -630,10 +630,12 @@ class ManifoldTracker:
         templates = template_walk(
             ps.templates, sigma, self.rng, None if anchor is None else anchor.template, cfg.anchor_pull
         )
+        n_fresh = 0
         if e > 0.0:
             states, templates, modes = redetect(
                 states, templates, modes, adapt, cfg.adaptive, model.base_size, km, self.rng
             )
+            n_fresh = int(np.count_nonzero(modes == 3))
         t1 = time.perf_counter()
         tm["propagate"] = t1 - t_start
         gray = model.prepare(frame)
@@ -745,6 +747,10 @@ class ManifoldTracker:
             ),
             inputs=FrameInputs(gray, cmap, colour_state, qstate),
             pose_search=search,
+            diffusion=None if adapt is None else Diffusion(
+                e, km.mode_probs[1], 1.0 - cfg.adaptive.template_slow * e, n_fresh, self.adapt.evidence,
+                self.adapt.z, self.adapt.lost,
+            ),
         )
         return box
 
