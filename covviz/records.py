@@ -36,7 +36,7 @@ if TYPE_CHECKING:  # the types of the online state; records import nothing of th
     from covviz.model.fgbg import ColourMap, ColourModel
     from covviz.model.observation import QuadrantState
 
-__all__ = ["STAGES", "FrameInputs", "FrameRecord", "Likelihood", "PoseSearch", "RunResult", "frame_number"]
+__all__ = ["STAGES", "Diffusion", "FrameInputs", "FrameRecord", "Likelihood", "PoseSearch", "RunResult", "frame_number"]
 
 def frame_number(index: int) -> int:
     """The 1-based frame number users see for a 0-based frame index."""
@@ -134,6 +134,37 @@ class PoseSearch:
 
 
 @dataclass(frozen=True, slots=True, eq=False)
+class Diffusion:
+    """How the adaptive diffusion searched on a frame (:mod:`covviz.model.adaptive`).
+
+    Attributes
+    ----------
+    evidence_in : float
+        The loss evidence ``e`` of the frame before, which this frame's noise followed.
+    jump_prob : float
+        The wide mode's probability on this frame.
+    sigma_factor : float
+        The factor on the template walk's σ on this frame.
+    redetected : int
+        Particles drawn afresh around the last confident pose (their ``modes`` are 3).
+    evidence : float
+        ``e`` after this frame (what the next frame follows).
+    z : float
+        This frame's robust z-score of the best distance (nan during the warm-up).
+    lost : int
+        Frames since the evidence was last 0.
+    """
+
+    evidence_in: float
+    jump_prob: float
+    sigma_factor: float
+    redetected: int
+    evidence: float
+    z: float
+    lost: int
+
+
+@dataclass(frozen=True, slots=True, eq=False)
 class FrameRecord:
     """What one tracker did on one frame.
 
@@ -186,6 +217,8 @@ class FrameRecord:
         What the likelihood depended on besides poses and templates.
     pose_search : PoseSearch, optional
         The scale/rotation search at the estimate, when the config asks for one.
+    diffusion : Diffusion, optional
+        The adaptive diffusion's evidence and what it did, when the config has it on.
     extras : dict[str, Any]
         Only what a baseline adds of its own (IPCA's mean and basis, an OpenCV
         tracker's failure flag); empty for the manifold trackers.
@@ -213,6 +246,7 @@ class FrameRecord:
     likelihood: Likelihood | None = None
     inputs: FrameInputs | None = None
     pose_search: PoseSearch | None = None
+    diffusion: Diffusion | None = None
     extras: dict[str, Any] = field(default_factory=dict)
 
     @property

@@ -64,6 +64,8 @@ import numpy as np
 
 from covviz.config import ConfigError, Spec, as_plain, check, from_mapping
 from covviz.model import fgbg
+from covviz.model.adaptive import AdaptiveDiffusion, AdaptState, adapted_kinematics, redetect
+from covviz.model.adaptive import evidence as adapt_evidence
 from covviz.model.dynamics import (
     POSE,
     SCALE,
@@ -96,7 +98,7 @@ from covviz.model.particles import (
     systematic_resample,
 )
 from covviz.model.spd import logdet, logm
-from covviz.records import FrameInputs, FrameRecord, Likelihood, PoseSearch
+from covviz.records import Diffusion, FrameInputs, FrameRecord, Likelihood, PoseSearch
 from covviz.trackers.base import ESTIMATE_MASS, Intervention
 
 __all__ = ["MANIFOLD_SPECS", "ManifoldConfig", "ManifoldState", "ManifoldTracker"]
@@ -181,6 +183,10 @@ class ManifoldConfig:
         :class:`~covviz.model.observation.ObservationConfig`. Its fields may
         also be given flat in :meth:`from_dict` and :meth:`replace`
         (``{"quadrants": false}``).
+    adaptive : AdaptiveDiffusion
+        The jump noise, the template walk's σ and re-detection following the
+        filter's own loss evidence (:mod:`covviz.model.adaptive`); off in
+        ``manifold-paper``.
     """
 
     n_particles: int = 600
@@ -207,6 +213,7 @@ class ManifoldConfig:
     search_blend: float = 1.0
     search_pull: float = 1.0
     observation: ObservationConfig = field(default_factory=ObservationConfig)
+    adaptive: AdaptiveDiffusion = field(default_factory=AdaptiveDiffusion)
 
     def __post_init__(self):
         check(self, MANIFOLD_SPECS)
@@ -279,6 +286,7 @@ MANIFOLD_SPECS: dict[str, Spec] = {
     "search_blend": Spec("float", 0, 1),
     "search_pull": Spec("float", 0, 1),
     "observation": Spec("config", cls=ObservationConfig),
+    "adaptive": Spec("config", cls=AdaptiveDiffusion),
 }
 
 
@@ -407,6 +415,7 @@ class ManifoldTracker:
         self.colour: fgbg.ColourModel | None = None
         self.quadrant_state: QuadrantState | None = None
         self.anchor: AnchorState | None = None
+        self.adapt: AdaptState | None = None
         self.last_record: FrameRecord | None = None
         #: An experiment's hand in update() (covviz.diagnosis.counterfactual); None in normal runs.
         self.intervention: Intervention | None = None
@@ -454,6 +463,7 @@ class ManifoldTracker:
             colour=self.colour,
             quadrant_state=self.quadrant_state,
             anchor=self.anchor,
+            adapt=self.adapt,
             rng_state=copy.deepcopy(self.rng.bit_generator.state),
             index=self._index,
         )
@@ -472,6 +482,7 @@ class ManifoldTracker:
         self.colour = state.colour
         self.quadrant_state = state.quadrant_state
         self.anchor = state.anchor
+        self.adapt = state.adapt
         self.rng.bit_generator.state = copy.deepcopy(state.rng_state)
         self._index = state.index
         self.last_record = None
@@ -500,6 +511,7 @@ class ManifoldTracker:
         self.colour = fgbg.init_colour_model(frame, b) if model.colour else None
         self.quadrant_state = model.initial_quadrant_state() if cfg.quadrant_reliability > 0 else None
         self.anchor = AnchorState(_ro(L0), 1.0) if cfg.anchor_pull > 0 else None
+        self.adapt = AdaptState.start(pose[0], L0) if cfg.adaptive.enabled else None
         self.particles = ParticleSet(states, np.broadcast_to(L0, (n, *L0.shape)).copy(), np.full(n, -np.log(n)))
         self._index = 0
         self.last_record = FrameRecord(
@@ -608,12 +620,22 @@ class ManifoldTracker:
         ps = self.particles
         self._index += 1
 
-        # 1. propagate kinematics and templates
-        states, modes = propagate_kinematics(ps.states, cfg.kinematics, model.base_size, self.rng)
+        # 1. propagate kinematics and templates (their noise following the last frame's evidence)
+        adapt = self.adapt
+        e = 0.0 if adapt is None else adapt.evidence
+        km = adapted_kinematics(cfg.kinematics, e, cfg.adaptive)
+        states, modes = propagate_kinematics(ps.states, km, model.base_size, self.rng)
         anchor = self.anchor
+        sigma = self._sigma if e == 0.0 else self._sigma * (1.0 - cfg.adaptive.template_slow * e)
         templates = template_walk(
-            ps.templates, self._sigma, self.rng, None if anchor is None else anchor.template, cfg.anchor_pull
+            ps.templates, sigma, self.rng, None if anchor is None else anchor.template, cfg.anchor_pull
         )
+        n_fresh = 0
+        if e > 0.0:
+            states, templates, modes = redetect(
+                states, templates, modes, adapt, cfg.adaptive, model.base_size, km, self.rng
+            )
+            n_fresh = int(np.count_nonzero(modes == 3))
         t1 = time.perf_counter()
         tm["propagate"] = t1 - t_start
         gray = model.prepare(frame)
@@ -678,6 +700,9 @@ class ManifoldTracker:
                 qstate, q_est, est_ob.quadrants[0], cfg.quadrant_reliability, cfg.quadrant_ref_rate,
                 cfg.quadrant_ref_gate,
             )
+        if adapt is not None:
+            self.adapt = adapt_evidence(adapt, float(np.min(ob.likelihood_distances)), est_pose, est_template,
+                                        cfg.adaptive)
         box = pose_to_box(est_pose[None], model.base_wh)[0]
         if colour_state is not None:
             self.colour = fgbg.update_colour_model(colour_state, frame, box, cfg.colour_rate)
@@ -722,6 +747,10 @@ class ManifoldTracker:
             ),
             inputs=FrameInputs(gray, cmap, colour_state, qstate),
             pose_search=search,
+            diffusion=None if adapt is None else Diffusion(
+                e, km.mode_probs[1], 1.0 - cfg.adaptive.template_slow * e, n_fresh, self.adapt.evidence,
+                self.adapt.z, self.adapt.lost,
+            ),
         )
         return box
 
@@ -762,6 +791,8 @@ class ManifoldState:
     colour : ColourModel or None
     quadrant_state : QuadrantState or None
     anchor : AnchorState or None
+    adapt : AdaptState or None
+        The adaptive diffusion's evidence and last confident pose (None when off).
     rng_state : dict
         The bit generator's state (``Generator.bit_generator.state``).
     index : int
@@ -775,6 +806,7 @@ class ManifoldState:
     colour: fgbg.ColourModel | None
     quadrant_state: QuadrantState | None
     anchor: AnchorState | None
+    adapt: AdaptState | None
     rng_state: dict
     index: int
 
@@ -848,6 +880,7 @@ PAPER_LIKELIHOOD = {
     "refine_fraction": 0.0,
     "scale_steps": 0,
     "rotation_steps": 0,
+    "adaptive": AdaptiveDiffusion(enabled=False),
 }
 #: The derivative normalisation and the colour term off, the quadrant term kept (for ablations and speed).
 NEW_TERMS_OFF = {k: v for k, v in PAPER_LIKELIHOOD.items() if k != "quadrants"}

@@ -395,6 +395,8 @@ class RerunLogger(Observer):
                         p.distance_min: (s.series_colors["min"], f"{s.prefix}min d"),
                         p.distance_mean: (s.series_colors["mean"], f"{s.prefix}mean d"),
                         p.spread: (s.series_colors["spread"], f"{s.prefix}spread"),
+                        p.loss_evidence: (s.series_colors["evidence"], f"{s.prefix}loss evidence"),
+                        p.redetected: (s.series_colors["redetected"], f"{s.prefix}re-detected/N"),
                     }
                 )
                 rec.log(
@@ -608,6 +610,9 @@ class RerunLogger(Observer):
             ess = float(record.ess) if np.isfinite(record.ess) else effective_sample_size(lw)
             rec.log(p.ess, rr.Scalars(ess / n))
             rec.log(p.max_weight, rr.Scalars(float(w.max())))
+            if record.diffusion is not None:
+                rec.log(p.loss_evidence, rr.Scalars(float(record.diffusion.evidence)))
+                rec.log(p.redetected, rr.Scalars(record.diffusion.redetected / n))
             if record.resampled:
                 rec.log(p.resampled, rr.Scalars(ess / n))
                 idx = record.resample_indices

@@ -55,6 +55,8 @@ SERIES_COLORS = {
     "min": (40, 235, 90),
     "mean": (255, 196, 0),
     "spread": (200, 120, 255),
+    "evidence": (255, 130, 0),
+    "redetected": (0, 220, 220),
     "drift": (255, 60, 60),
     "lost": (255, 0, 0),
     "recovered": (40, 235, 90),

@@ -19,7 +19,8 @@ The entity tree::
     trackers/<name>/video/label      Points2D: the tracker's name by its box (several trackers)
     trackers/<name>/video/background LineStrips2D: regions sampled as background for the MDS picture
     trackers/<name>/video/replay/<fix> Boxes2D: a loss's counterfactual replay under each fix (faint)
-    trackers/<name>/weights/...      Scalars: ess (ESS/N), max, survivors; SeriesPoints: resampled
+    trackers/<name>/weights/...      Scalars: ess (ESS/N), max, survivors, loss_evidence (the adaptive diffusion's
+                                     e), redetected (share drawn afresh); SeriesPoints: resampled
     trackers/<name>/distance/...     Scalars: min, mean (weighted), spread (template cloud)
     trackers/<name>/metrics/...      Scalars: iou, center_error; SeriesPoints: drift, lost, recovered;
                                      replay/<fix>: IoU of each counterfactual replay
@@ -176,6 +177,14 @@ class TrackerPaths:
     @property
     def survivors(self) -> str:
         return f"{self.weights}/survivors"
+
+    @property
+    def loss_evidence(self) -> str:
+        return f"{self.weights}/loss_evidence"
+
+    @property
+    def redetected(self) -> str:
+        return f"{self.weights}/redetected"
 
     @property
     def resampled(self) -> str:

@@ -1,0 +1,165 @@
+"""Adaptive diffusion and re-detection (covviz.model.adaptive): the equations, and the tracker's use of them."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from covviz.config import ConfigError
+from covviz.data.scenarios import open_scenario
+from covviz.data.sequences import SyntheticSequence
+from covviz.model.adaptive import AdaptiveDiffusion, AdaptState, adapted_kinematics, evidence, redetect
+from covviz.model.dynamics import KinematicModel
+from covviz.trackers.manifold import PAPER_LIKELIHOOD, ManifoldConfig, ManifoldTracker
+
+CFG = AdaptiveDiffusion()
+POSE = np.array([50.0, 40.0, 1.0, 0.0])
+L = np.eye(9) * 0.1
+
+
+def _fill(values, cfg=CFG):
+    st = AdaptState.start(POSE, L)
+    for v in values:
+        st = evidence(st, v, POSE, L, cfg)
+    return st
+
+
+def test_evidence_is_the_robust_z_score_of_the_best_distance():
+    rng = np.random.default_rng(0)
+    calm = 4.0 + 0.05 * rng.standard_normal(40)
+    st = _fill(calm)
+    win = np.array(st.window)
+    m = np.median(win)
+    s = 1.4826 * np.median(np.abs(win - m)) + 1e-3 * m
+    best = m + 6.0 * s
+    after = evidence(st, best, POSE + 1, L + 1, CFG)
+    assert after.z == pytest.approx(6.0, rel=1e-9)
+    assert after.evidence == pytest.approx((6.0 - CFG.z_lo) / (CFG.z_hi - CFG.z_lo))
+    # a frame with evidence keeps the last confident pose and template, and counts the frames lost
+    assert after.lost == 1 and np.array_equal(after.good_pose, st.good_pose)
+    assert np.array_equal(after.good_template, L)
+
+
+def test_calm_tracking_gives_no_evidence_and_warmup_holds_it_at_zero():
+    rng = np.random.default_rng(1)
+    st = _fill(4.0 + 0.05 * rng.standard_normal(60))
+    assert st.evidence == 0.0 and st.lost == 0
+    # during the warm-up even a far outlier gives none
+    early = _fill([4.0, 4.01, 3.99, 4.02, 50.0])
+    assert early.frames < CFG.warmup and early.evidence == 0.0
+
+
+def test_an_outlier_enters_the_window_clipped_and_a_lasting_change_becomes_the_norm():
+    rng = np.random.default_rng(2)
+    st = _fill(4.0 + 0.05 * rng.standard_normal(40))
+    st = evidence(st, 100.0, POSE, L, CFG)
+    assert st.evidence == 1.0 and max(st.window) < 5.0  # clipped at the edge of the usual range
+    for _ in range(CFG.window):
+        st = evidence(st, 6.0 + 0.05 * rng.standard_normal(), POSE, L, CFG)
+    assert st.evidence == 0.0  # the new level is the norm now
+
+
+def test_kinematics_widen_with_evidence_and_are_untouched_without():
+    km = KinematicModel()
+    assert adapted_kinematics(km, 0.0, CFG) is km
+    full = adapted_kinematics(km, 1.0, CFG)
+    assert full.mode_probs == pytest.approx((1 - CFG.jump_prob, CFG.jump_prob))
+    assert full.pos_sigma == pytest.approx((km.pos_sigma[0], km.pos_sigma[1] * CFG.jump_spread))
+    assert full.vel_sigma == pytest.approx((km.vel_sigma[0], km.vel_sigma[1] * CFG.jump_spread))
+    half = adapted_kinematics(km, 0.5, CFG)
+    assert km.mode_probs[1] < half.mode_probs[1] < full.mode_probs[1]
+
+
+def _lost_state(e: float, lost: int = 3) -> AdaptState:
+    return dataclasses.replace(AdaptState.start(POSE, L), evidence=e, lost=lost)
+
+
+def test_redetection_draws_a_share_around_the_last_good_pose_with_its_template():
+    n = 500
+    states = np.tile([10.0, 10.0, 1.0, 1.0, 1.0, 0.2], (n, 1))
+    templates = np.zeros((n, 9, 9))
+    modes = np.zeros(n, dtype=np.int8)
+    st = _lost_state(1.0, lost=3)
+    s2, t2, m2 = redetect(states, templates, modes, st, CFG, 20.0, KinematicModel(), np.random.default_rng(0))
+    drawn = m2 == 3
+    assert drawn.sum() == round(CFG.redetect_fraction * n)
+    r = np.hypot(s2[drawn, 0] - POSE[0], s2[drawn, 1] - POSE[1])
+    assert r.max() <= CFG.redetect_radius * 20.0 * np.sqrt(1 + 3) + 1e-9
+    assert np.all(s2[drawn, 2:4] == 0.0) and np.all(s2[drawn, 5] == POSE[3])
+    assert np.array_equal(t2[drawn], np.broadcast_to(L, t2[drawn].shape))
+    assert np.array_equal(s2[~drawn], states[~drawn]) and not np.any(t2[~drawn])
+    assert np.all(states[:, 0] == 10.0)  # inputs untouched
+
+
+def test_no_redetection_and_no_random_draw_below_its_evidence():
+    n = 50
+    states, templates, modes = np.zeros((n, 6)), np.zeros((n, 9, 9)), np.zeros(n, dtype=np.int8)
+    rng = np.random.default_rng(0)
+    before = rng.bit_generator.state
+    out = redetect(states, templates, modes, _lost_state(0.4), CFG, 20.0, KinematicModel(), rng)
+    assert out[0] is states and out[1] is templates and out[2] is modes
+    assert rng.bit_generator.state == before
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"z_lo": 5.0, "z_hi": 4.0}, "z_lo < z_hi"),
+    ({"jump_prob": 1.5}, "jump_prob"),
+    ({"jump_spread": 0.5}, "jump_spread"),
+    ({"window": 1}, "window"),
+])
+def test_config_is_validated(kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        AdaptiveDiffusion(**kwargs)
+
+
+def test_config_round_trips_through_json_and_is_off_in_the_paper_variant():
+    cfg = ManifoldConfig()
+    assert cfg.adaptive.enabled
+    assert ManifoldConfig.from_dict(cfg.as_dict()) == cfg
+    assert not cfg.replace(**PAPER_LIKELIHOOD).adaptive.enabled
+    with pytest.raises(ConfigError, match="AdaptiveDiffusion.enabled"):
+        ManifoldConfig.from_dict({"adaptive": {"enabled": "yes"}})
+
+
+def _run(config, seq, n, seed=0):
+    boxes = []
+    with ManifoldTracker(config, rng=seed) as tr:
+        tr.init(seq.frame(0).image, seq.init_box)
+        for i in range(1, n):
+            boxes.append(tr.update(seq.frame(i).image))
+        return np.array(boxes), tr
+
+
+def test_while_the_evidence_stays_zero_the_boxes_are_those_of_the_constant_noise():
+    """No evidence, no change: the adaptive filter draws exactly what the paper's constant noise draws."""
+    seq = SyntheticSequence()
+    on = ManifoldConfig(n_particles=80)
+    off = on.replace(adaptive=AdaptiveDiffusion(enabled=False))
+    n = 25
+    b_off, _ = _run(off, seq, n)
+    boxes, evid = [], []
+    with ManifoldTracker(on, rng=0) as tr:
+        tr.init(seq.frame(0).image, seq.init_box)
+        for i in range(1, n):
+            boxes.append(tr.update(seq.frame(i).image))
+            evid.append(tr.adapt.evidence)
+    assert max(evid) == 0.0
+    assert np.array_equal(np.array(boxes), b_off)
+
+
+def test_fast_motion_raises_the_evidence_and_redetection_particles_appear():
+    seq = open_scenario("fast-motion")
+    truth = seq.scenario_truth
+    cfg = ManifoldConfig(n_particles=200)
+    seen = []
+    with ManifoldTracker(cfg, rng=0) as tr:
+        tr.init(seq.frame(0).image, seq.init_box)
+        for i in range(1, len(seq)):
+            tr.update(seq.frame(i).image)
+            seen.append((tr.adapt.evidence, int(np.sum(tr.last_record.modes == 3))))
+    assert truth is not None
+    ev = np.array([e for e, _ in seen])
+    assert ev.max() > 0.5, "the leap should leave no particle explaining the frame"
+    assert any(k > 0 for _, k in seen)
