@@ -29,6 +29,7 @@ Usage::
 
     python benchmarks/logging_overhead.py                 # ~3-10 min on 2 cores
     python benchmarks/logging_overhead.py --frames 100 --long 300 --repeats 1   # quick look
+    python benchmarks/logging_overhead.py ../shared/sequences/Car4 --frames 200 --long 659   # a real sequence
 """
 
 from __future__ import annotations
@@ -159,6 +160,9 @@ def main(argv=None) -> int:
                     help="untraced runs without the drift diagnosis (tracking alone) instead of as covviz track "
                          "--no-save runs")
     ap.add_argument("--json", type=Path, help="also write the numbers here")
+    ap.add_argument("source", nargs="?", default=None,
+                    help="a sequence folder (e.g. ../shared/sequences/Car4); default: the synthetic default. "
+                         "--long is capped at its length")
     args = ap.parse_args(argv)
     if args.blas_threads:
         from threadpoolctl import threadpool_limits
@@ -166,10 +170,20 @@ def main(argv=None) -> int:
         threadpool_limits(args.blas_threads, user_api="blas")
 
     n_seq = max(args.frames, args.long)
-    seq = SyntheticSequence(SyntheticConfig(n_frames=n_seq))
+    if args.source is None:
+        seq = SyntheticSequence(SyntheticConfig(n_frames=n_seq))
+        what = f"synthetic {seq.config.width}x{seq.config.height}"
+    else:
+        from covviz.data.sequences import open_sequence
+
+        seq = open_sequence(args.source)
+        h, w = seq.frame(0).image.shape[:2]
+        what = f"{seq.name} {w}x{h} ({len(seq)} frames)"
+        args.frames = min(args.frames, len(seq))
+        args.long = min(args.long, len(seq))
     tmp = Path(tempfile.mkdtemp(prefix="covviz-bench-"))
     print(
-        f"synthetic {seq.config.width}x{seq.config.height}, {args.particles} particles, "
+        f"{what}, {args.particles} particles, "
         f"MDS + likelihood map every {args.mds_every} frames, {args.frames} frames per run, "
         f"BLAS threads: {args.blas_threads or 'default'}; load average {os.getloadavg()[0]:.1f} "
         f"on {os.cpu_count()} cores",

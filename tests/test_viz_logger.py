@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import rerun as rr
 from viz_helpers import boxes, last, read_recording, rrd_verify, scalar_series, static_text, texts
 
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
@@ -204,6 +205,7 @@ def test_scalars_equal_the_records(run):
     total = scalar_series(t, p.timing("total"))
     ious, ces = scalar_series(t, p.iou), scalar_series(t, p.center_error)
     spread = scalar_series(t, p.spread)
+    evidence, redetected = scalar_series(t, p.loss_evidence), scalar_series(t, p.redetected)
     every = LoggerConfig().spread_every  # every k-th frame that has templates (index >= 1)
     assert set(spread) == {i + 1 for i in range(1, N_FRAMES) if i % every == 0}
     for i in range(N_FRAMES):
@@ -219,6 +221,8 @@ def test_scalars_equal_the_records(run):
         assert wmax[f] == pytest.approx(w.max())
         assert dmin[f] == pytest.approx(rec.distances.min())
         assert dmean[f] == pytest.approx(float(np.dot(w, rec.distances)))
+        assert evidence[f] == rec.diffusion.evidence
+        assert redetected[f] == pytest.approx(rec.diffusion.redetected / N_PARTICLES)
 
 
 def test_likelihood_terms_equal_the_records(run):
@@ -432,3 +436,29 @@ def test_the_same_boxes_with_and_without_the_recorder(tmp_path):
     traced = run(ManifoldTracker(ManifoldConfig(n_particles=N_PARTICLES), rng=7), seq,
                  [BackgroundObserver(Pipeline([Diagnoser(cfg.diagnosis), RerunLogger(stream, cfg)]))])
     assert np.array_equal(bare.boxes, traced.boxes)
+
+
+def test_series_sent_as_columns_keep_their_frames_times_and_order(tmp_path):
+    """SeriesBuffer: values added frame by frame, flushed in columns every few frames, read back as logged."""
+    from covviz.viz.series import SeriesBuffer
+
+    path = tmp_path / "s.rrd"
+    stream = rr.RecordingStream("covviz-test")
+    stream.save(str(path))
+    buf = SeriesBuffer(stream, every=4)
+    for f in range(1, 12):
+        buf.at(f, (f - 1) / 25.0)
+        buf.add("a/x", f * 0.5)
+        if f % 3 == 0:
+            buf.add("a/y", -f)
+        buf.tick()
+    assert 0 < len(buf) < 11  # 11 frames, flushed at 4 and 8: three frames held
+    buf.flush()
+    assert len(buf) == 0
+    stream.flush()
+    stream.disconnect()
+    t, _ = read_recording(path)
+    assert scalar_series(t, "a/x") == {f: f * 0.5 for f in range(1, 12)}
+    assert scalar_series(t, "a/y") == {f: -f for f in (3, 6, 9)}
+    with pytest.raises(RuntimeError, match="at"):
+        SeriesBuffer(stream).add("a/x", 1.0)

@@ -70,6 +70,7 @@ from covviz.viz.palette import (
     weight_levels,
     weight_lut,
 )
+from covviz.viz.series import SeriesBuffer
 from covviz.viz.sinks import FLUSH_TIMEOUT, close_stream
 
 __all__ = ["LoggerConfig", "RerunLogger"]
@@ -96,6 +97,9 @@ class LoggerConfig:
         (0: never).
     likelihood_every : int, optional
         The likelihood map every this many frames (default: ``mds_every``; 0: never).
+    series_every : int
+        The per-frame scalars (ESS, distances, terms, IoU, timings) are sent as columns every this
+        many frames (:class:`~covviz.viz.series.SeriesBuffer`; 1: every frame, as a live viewer may want).
     spread_every : int
         The template-cloud spread (a Karcher mean) every this many frames.
     spread_templates : int
@@ -131,6 +135,7 @@ class LoggerConfig:
     mds_every: int = MDS_EVERY
     likelihood_every: int | None = None
     spread_every: int = 3
+    series_every: int = 10
     spread_templates: int = 32
     top_k: int = 10
     mds_max_templates: int = 32
@@ -146,7 +151,7 @@ class LoggerConfig:
     dense_after: int = 3
 
     def __post_init__(self):
-        for name in ("mds_every", "spread_every", "spread_templates", "top_k", "n_background"):
+        for name in ("mds_every", "spread_every", "spread_templates", "top_k", "n_background", "series_every"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.likelihood_every is not None and self.likelihood_every < 0:
@@ -309,6 +314,8 @@ class RerunLogger(Observer):
         self._fps = None
         self._blueprint_args = None
         self.log_seconds = 0.0  # time spent in on_frame, for the overhead benchmark
+        #: The per-frame scalars, sent as columns every ``series_every`` frames (covviz.viz.series).
+        self.series = SeriesBuffer(stream, self.config.series_every)
 
     # ------------------------------------------------------------------ #
     def on_start(self, start: RunStart, found: Findings) -> None:
@@ -455,7 +462,8 @@ class RerunLogger(Observer):
             self._on_frame(frame, records, found.news or (None,) * len(records))
         dt = time.perf_counter() - t0
         self.log_seconds += dt
-        self.stream.log(P.LOGGER_TIME, rr.Scalars(dt * 1e3))
+        self.series.add(P.LOGGER_TIME, dt * 1e3)
+        self.series.tick()
 
     def _on_frame(self, frame, records: Seq[FrameRecord], news: Seq) -> None:
         rec, cfg = self.stream, self.config
@@ -492,6 +500,7 @@ class RerunLogger(Observer):
         self.stream.set_time(P.FRAME_TIMELINE, sequence=frame_number(frame.index))
         if frame.time is not None:
             self.stream.set_time(P.TIME_TIMELINE, duration=float(frame.time))
+        self.series.at(frame_number(frame.index), frame.time)
 
     def _warn(self, s: _TrackerState, problems: list[str]) -> None:
         for msg in problems:
@@ -608,21 +617,21 @@ class RerunLogger(Observer):
                 ),
             )
             ess = float(record.ess) if np.isfinite(record.ess) else effective_sample_size(lw)
-            rec.log(p.ess, rr.Scalars(ess / n))
-            rec.log(p.max_weight, rr.Scalars(float(w.max())))
+            self.series.add(p.ess, ess / n)
+            self.series.add(p.max_weight, float(w.max()))
             if record.diffusion is not None:
-                rec.log(p.loss_evidence, rr.Scalars(float(record.diffusion.evidence)))
-                rec.log(p.redetected, rr.Scalars(record.diffusion.redetected / n))
+                self.series.add(p.loss_evidence, float(record.diffusion.evidence))
+                self.series.add(p.redetected, record.diffusion.redetected / n)
             if record.resampled:
                 rec.log(p.resampled, rr.Scalars(ess / n))
                 idx = record.resample_indices
                 if idx is not None and len(idx):
-                    rec.log(p.survivors, rr.Scalars(len(np.unique(idx)) / len(idx)))
+                    self.series.add(p.survivors, len(np.unique(idx)) / len(idx))
             else:
-                rec.log(p.survivors, rr.Scalars(1.0))
+                self.series.add(p.survivors, 1.0)
             if dist is not None:
-                rec.log(p.distance_min, rr.Scalars(float(dist.min())))
-                rec.log(p.distance_mean, rr.Scalars(float(np.dot(w, dist))))
+                self.series.add(p.distance_min, float(dist.min()))
+                self.series.add(p.distance_mean, float(np.dot(w, dist)))
                 if contrib:
                     self._log_terms(s, w, dist, contrib)
         elif s.had_particles:
@@ -641,30 +650,30 @@ class RerunLogger(Observer):
                         static=True)
                 rec.log(p.term_moved(k), rr.SeriesLines(names=[f"{s.prefix}weight moved by {k}"], widths=[0.8]),
                         static=True)
-            rec.log(p.term_share(k), rr.Scalars(share[k]))
+            self.series.add(p.term_share(k), share[k])
             if k in moved:
-                rec.log(p.term_moved(k), rr.Scalars(moved[k]))
+                self.series.add(p.term_moved(k), moved[k])
 
     def _log_quality(self, s: _TrackerState, box, gt) -> float | None:
         """IoU and centre error against the ground truth; returns the IoU (None without ground truth)."""
-        rec, p = self.stream, s.paths
+        p = s.paths
         o = None
         if gt is not None and box is not None:
             o = float(iou(box[None], gt[None])[0])
-            rec.log(p.iou, rr.Scalars(o))
-            rec.log(p.center_error, rr.Scalars(float(center_error(box[None], gt[None])[0])))
+            self.series.add(p.iou, o)
+            self.series.add(p.center_error, float(center_error(box[None], gt[None])[0]))
         return o
 
     def _log_spread(self, s: _TrackerState, record: FrameRecord, i: int, problems: list) -> None:
         """The template cloud's spread (mean distance to its Karcher mean)."""
-        rec, cfg, p = self.stream, self.config, s.paths
+        cfg, p = self.config, s.paths
         templates = checked(record.templates, (-1, -1, -1), "templates", problems)
         if templates is not None and len(templates) and cfg.spread_every and i % cfg.spread_every == 0:
             try:
                 spread, s.spread_mean = template_spread(
                     templates, init=s.spread_mean, max_templates=cfg.spread_templates
                 )
-                rec.log(p.spread, rr.Scalars(spread))
+                self.series.add(p.spread, spread)
             except (ValueError, np.linalg.LinAlgError) as exc:
                 problems.append(f"template spread failed ({exc})")
                 s.spread_mean = None
@@ -726,7 +735,7 @@ class RerunLogger(Observer):
                     rr.SeriesLines(names=[f"{s.prefix}{stage}"], widths=[1.0 if stage != "total" else 2.0]),
                     static=True,
                 )
-            rec.log(path, rr.Scalars(float(sec) * 1e3))
+            self.series.add(path, float(sec) * 1e3)
 
     def _log_diagnostics(
         self, s: _TrackerState, frame, record, box, gt, est_t, prepared_cache, problems, dense: bool = False
@@ -1055,6 +1064,7 @@ class RerunLogger(Observer):
     # ------------------------------------------------------------------ #
     def on_end(self, results, found: Findings) -> None:
         rec = self.stream
+        self.series.flush()
         try:
             last = frame_number(self._last_frame) if self._last_frame >= 0 else 0
             lines = ["# Summary of the run", ""]
