@@ -14,7 +14,8 @@ Usage:
 
 The variants (``VARIANTS``): the default of before issue 14 (the quadrant term:
 ``NEW_TERMS_OFF``), that plus each new term alone, all of them (the default,
-``ManifoldConfig()``), the default without the gradient floor, and ``manifold-paper``
+``ManifoldConfig()``), the default without the gradient floor, the default with the paper's
+constant noise (no adaptive diffusion, issue 24), and ``manifold-paper``
 (``PAPER_LIKELIHOOD``). These
 machines are noisy: the costs are ratios measured in one run; the absolute
 figures name the machine they ran on.
@@ -43,10 +44,12 @@ DEFAULT = ManifoldConfig()
 VARIANTS: dict[str, tuple[str, str, dict]] = {
     "previous": ("previous default (quadrant term)", "manifold", dict(NEW_TERMS_OFF)),
     "grad": ("+ derivative normalisation (floored)", "manifold",
-             {**NEW_TERMS_OFF, "grad_normalize": DEFAULT.grad_normalize}),
-    "colour": ("+ colour term", "manifold", {**NEW_TERMS_OFF, "colour_weight": DEFAULT.colour_weight}),
+             {**NEW_TERMS_OFF, "grad_normalize": DEFAULT.observation.grad_normalize}),
+    "colour": ("+ colour term", "manifold", {**NEW_TERMS_OFF, "colour_weight": DEFAULT.observation.colour_weight}),
     "default": ("both: the default", "manifold", {}),
     "nofloor": ("the default, gradient floor off", "manifold", {"grad_floor": 0.0}),
+    "static": ("the default, constant noise (no adaptive diffusion)", "manifold",
+               {"adaptive": {"enabled": False}}),
     "paper": ("manifold-paper", "manifold-paper", {}),
 }
 SEED_SETS = {"Seeds 0–2 (decision)": (0, 1, 2), "Seeds 3–5 (confirmation)": (3, 4, 5)}
