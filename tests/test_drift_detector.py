@@ -288,3 +288,27 @@ def test_calibrate_command_writes_a_model_the_detector_option_reads(tmp_path, rn
     assert main(["calibrate", str(tmp_path / "nothing"), "--out", str(out)]) == 2
     assert main(["track", "--max-frames", "5", "--no-save", "--no-progress", "--out", str(tmp_path / "runs"),
                  "--detector", str(tmp_path / "missing.json")]) == 2
+
+
+def test_cloud_gap_of_a_collapsed_cloud_is_bounded_by_the_spread_floor():
+    """A cloud collapsed onto one ancestor (or frozen by the adaptive diffusion) has no spread: the
+    gap is measured against SignalConfig.spread_floor instead of exploding (10^5-10^6 on the dev runs)."""
+    import dataclasses
+
+    from covviz.data.sequences import SyntheticSequence
+    from covviz.diagnosis.signals import SignalConfig, SignalObserver
+    from covviz.model.spd import logm
+    from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
+
+    seq = SyntheticSequence()
+    obs = SignalObserver()
+    obs.on_start(1)
+    with ManifoldTracker(ManifoldConfig(n_particles=40), rng=0) as tr:
+        tr.init(seq.frame(0).image, seq.init_box)
+        obs.on_frame(seq.frame(0), [tr.last_record])
+        tr.update(seq.frame(1).image)
+        rec = tr.last_record
+    one = np.broadcast_to(rec.templates[0], rec.templates.shape).copy()
+    obs.on_frame(seq.frame(1), [dataclasses.replace(rec, templates=one)])
+    gap = np.linalg.norm(logm(rec.estimate_descriptor) - rec.templates[0])
+    assert obs.latest[0]["cloud_gap"] == pytest.approx(gap / SignalConfig().spread_floor, rel=1e-9)

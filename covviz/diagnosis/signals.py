@@ -33,7 +33,8 @@ Particle filters only:
 * ``mode_mass`` — the weight at least :attr:`SignalConfig.mode_distance`
   target sizes from the estimate;
 * ``cloud_gap`` — the observed descriptor's log-Euclidean distance to the
-  template cloud's weighted mean over the cloud's weighted RMS spread.
+  template cloud's weighted mean over the cloud's weighted RMS spread (floored at
+  :attr:`SignalConfig.spread_floor`).
 
 Records are read only through the accessors ``_rec_*`` below (one place per
 field), so a change of :class:`~covviz.records.FrameRecord` is a change here.
@@ -75,6 +76,10 @@ MODE_DISTANCE = 0.75
 PSR_SIDE = 0.5
 #: ... at least this many of them, else the farthest quarter.
 PSR_MIN_SIDE = 10
+#: Floor of the template cloud's spread in ``cloud_gap`` (log-Euclidean): below the usual spread (1st
+#: percentile 0.08 on Car4), above a cloud collapsed onto one ancestor by resampling, or frozen by the
+#: adaptive diffusion, whose ratio would otherwise reach 10^5-10^6 (seen on the dev runs).
+SPREAD_FLOOR = 0.05
 #: Offset (box sizes) of the coarse map's 8 outer cells for trackers without particles.
 COARSE_OFFSET = 0.5
 #: Frames over which ``scale_rate`` compares the box size.
@@ -96,6 +101,7 @@ class SignalConfig:
     psr_side: float = PSR_SIDE
     psr_min_side: int = PSR_MIN_SIDE
     coarse_offset: float = COARSE_OFFSET
+    spread_floor: float = SPREAD_FLOOR
     scale_lag: int = SCALE_LAG
 
     def __post_init__(self):
@@ -370,7 +376,7 @@ class SignalObserver:
                 flat = T.reshape(n, -1)
                 mean = w @ flat
                 spread = math.sqrt(max(float(w @ np.sum((flat - mean) ** 2, axis=1)), 0.0))
-                out["cloud_gap"] = float(np.linalg.norm(L.ravel() - mean) / (spread + 1e-6))
+                out["cloud_gap"] = float(np.linalg.norm(L.ravel() - mean) / max(spread, cfg.spread_floor))
         return np.array([out[k] for k in SIGNALS])
 
     # ------------------------------------------------------------------ #

@@ -1,0 +1,126 @@
+"""Quick dev-set runs of a manifold variant: the bare tracker, no diagnosis, two processes.
+
+How issue 24 chose its variants (docs/tuning.md): each variant is a JSON object of
+``ManifoldConfig`` fields, run on a half of the dev set with the bench's seed rule
+(:func:`covviz.trackers.tracker_rng`), so seed ``s`` gives the boxes of ``covviz bench
+--seeds`` (checked: the success AUCs equal the bench's to the last bit). The halves were
+fixed before any run, by alternating alphabetical order of the 14 dev sequences:
+choose on ``A``, confirm on ``B`` and on seeds 3–5. Results (one JSON and the boxes per
+run) go to ``OUT/NAME/``; a second run skips what is there.
+
+Usage::
+
+    python scripts/dev_sweep.py run static '{"adaptive": {"enabled": false}}' --set AB --seeds 0,1,2
+    python scripts/dev_sweep.py run adaptive '{}' --set A --seeds 0,1,2
+    python scripts/dev_sweep.py table static adaptive          # per sequence, both seed sets
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+A = ["Bolt2", "Car4", "Crossing", "Dudek_first20", "Human3", "Jogging-2", "Surfer"]
+B = ["Car1", "Couple", "DragonBaby", "Football1", "Jogging-1", "MotorRolling", "VOT15_bag"]
+SETS = {"A": A, "B": B, "AB": A + B}
+
+
+def _job(args):
+    root, out_dir, cfgd, seq, seed = args
+    out = Path(out_dir) / f"{seq}_s{seed}.json"
+    if out.exists():
+        return json.loads(out.read_text())
+    from covviz.data.sequences import open_sequence, write_boxes
+    from covviz.diagnosis.calibrate import losses_of
+    from covviz.metrics import evaluate, iou
+    from covviz.trackers import tracker_rng
+    from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
+
+    s = open_sequence(str(Path(root) / seq))
+    cfg = ManifoldConfig.from_dict({**cfgd, "threads": 1})  # results never depend on the thread count
+    boxes = [s.init_box]
+    t0 = time.process_time()
+    with ManifoldTracker(cfg, rng=tracker_rng(seed)) as tr:
+        tr.init(s.frame(0).image, s.init_box)
+        for i in range(1, len(s)):
+            boxes.append(tr.update(s.frame(i).image))
+    boxes = np.array(boxes)
+    res = {
+        "seq": seq, "seed": seed, "auc": evaluate(boxes, s.groundtruth).success_auc,
+        "losses": len(losses_of(iou(boxes, s.groundtruth))), "cpu_seconds": time.process_time() - t0,
+        "boxes_sha256": hashlib.sha256(boxes.tobytes()).hexdigest(),
+    }
+    write_boxes(out.with_suffix(".txt"), boxes)
+    out.write_text(json.dumps(res))
+    return res
+
+
+def run(args) -> int:
+    cfgd = json.loads(args.config)
+    from covviz.trackers.manifold import ManifoldConfig
+
+    ManifoldConfig.from_dict(cfgd)  # refuse a bad config before starting any process
+    out = Path(args.out) / args.name
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(cfgd))
+    seeds = [int(x) for x in args.seeds.split(",")]
+    jobs = [(args.root, str(out), cfgd, q, sd) for q in SETS[args.set] for sd in seeds]
+    with ProcessPoolExecutor(args.jobs) as ex:
+        res = list(ex.map(_job, jobs))
+    print(f"{args.name}: mean success AUC {np.mean([r['auc'] for r in res]):.4f}, "
+          f"{sum(r['losses'] for r in res)} losses in {len(res)} runs")
+    return 0
+
+
+def table(args) -> int:
+    def agg(name, seqs, seeds):
+        v = []
+        for q in seqs:
+            for sd in seeds:
+                f = Path(args.out) / name / f"{q}_s{sd}.json"
+                if not f.exists():
+                    return None
+                r = json.loads(f.read_text())
+                v.append((r["auc"], r["losses"]))
+        return np.mean([a for a, _ in v]), sum(n for _, n in v)
+
+    cell = lambda x: "—" if x is None else f"{x[0]:.3f} ({x[1]})"
+    sets = ((0, 1, 2), (3, 4, 5))
+    print("| sequence | set | " + " | ".join(f"{n}, seeds {s[0]}–{s[-1]}" for s in sets for n in args.names) + " |")
+    print("|---|---|" + "---:|" * (len(sets) * len(args.names)))
+    for q in A + B:
+        print(f"| {q} | {'A' if q in A else 'B'} | "
+              + " | ".join(cell(agg(n, [q], s)) for s in sets for n in args.names) + " |")
+    for label, seqs in (("A", A), ("B", B), ("all 14", A + B)):
+        print(f"| **mean, {label}** | | " + " | ".join(cell(agg(n, seqs, s)) for s in sets for n in args.names) + " |")
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="run one variant")
+    r.add_argument("name")
+    r.add_argument("config", help="a JSON object of ManifoldConfig fields ('{}': the defaults)")
+    r.add_argument("--set", choices=sorted(SETS), default="A")
+    r.add_argument("--seeds", default="0,1,2")
+    r.add_argument("--jobs", type=int, default=2)
+    r.add_argument("--root", default=os.environ.get("COVVIZ_SEQUENCES", "../shared/sequences"))
+    t = sub.add_parser("table", help="a markdown table of variants already run")
+    t.add_argument("names", nargs="+")
+    for p in (r, t):
+        p.add_argument("--out", default="runs/sweep", help="results folder (default runs/sweep, outside git)")
+    args = ap.parse_args(argv)
+    return run(args) if args.cmd == "run" else table(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
