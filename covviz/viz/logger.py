@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import logging
+import threading
 import time
 from collections import deque
 from collections.abc import Sequence as Seq
@@ -320,6 +321,10 @@ class RerunLogger(Observer):
     # ------------------------------------------------------------------ #
     def on_start(self, start: RunStart, found: Findings) -> None:
         rec, cfg = self.stream, self.config
+        if cfg.mds_every:
+            # scikit-learn's import (~0.8 s, once per process) happens on a side thread while the first
+            # frames are tracked, not inside the first MDS frame.
+            threading.Thread(target=_preload_mds, name="covviz-preload", daemon=True).start()
         sequence = start.sequence
         names: list[str] = []
         for i, info in enumerate(start.trackers):
@@ -1177,3 +1182,11 @@ def recorder(stream: rr.RecordingStream, config: LoggerConfig | None = None, run
     config = config or LoggerConfig()
     return Pipeline([Diagnoser(config.diagnosis),
                      RerunLogger(stream, config, run_info=run_info, close_on_end=close_on_end)])
+
+
+def _preload_mds() -> None:
+    """Import what the first MDS picture needs (scikit-learn's SMACOF)."""
+    try:
+        import sklearn.manifold  # noqa: F401
+    except Exception as exc:  # noqa: BLE001 - the MDS frame will say what is wrong, in its own place
+        log.debug("could not preload scikit-learn: %s", exc)
