@@ -170,19 +170,26 @@ def test_particles_and_weights_equal_the_records(run):
     top_strips = last(t, p.top, "LineStrips2D:strips")
     top_d, top_dl = last(t, p.top, "distance"), last(t, p.top, "likelihood_distance")
     top_q = [last(t, p.top, f"quadrant_distance_{j}") for j in range(4)]
+    dots = last(t, p.particle_dots, "Points2D:positions")
+    dot_colors = last(t, p.particle_dots, "Points2D:colors")
+    packed = lambda rgba: rgba.astype(np.uint32) @ np.array([1 << 24, 1 << 16, 1 << 8, 1])
     for i in range(1, N_FRAMES):
         rec, f = run["col"].records[i][0], i + 1  # index, frame number
         w = rec.weights
         level = weight_levels(w)
         order = np.argsort(level, kind="stable")
-        expected = np.concatenate([rec.particle_corners, rec.particle_corners[:, :1]], axis=1)[order]
+        # Every particle is drawn once: its region if it has box_weight of the largest weight, else a dot.
+        heavy = (w / w.max())[order] >= LoggerConfig().box_weight
+        boxed, dotted = order[heavy], order[~heavy]
+        assert len(boxed) + len(dotted) == N_PARTICLES and len(boxed) >= 1
+        expected = np.concatenate([rec.particle_corners, rec.particle_corners[:, :1]], axis=1)[boxed]
         got = np.array(strips[f], dtype=np.float64)
-        assert got.shape == (N_PARTICLES, 5, 2)
+        assert got.shape == (len(boxed), 5, 2)
         np.testing.assert_allclose(got, expected, atol=q / 2 + 1e-4)
-        np.testing.assert_array_equal(
-            np.array(colors[f], dtype=np.uint32),
-            LUT[level[order]].astype(np.uint32) @ np.array([1 << 24, 1 << 16, 1 << 8, 1]),
-        )
+        np.testing.assert_array_equal(np.array(colors[f], dtype=np.uint32), packed(LUT[level[boxed]]))
+        got_dots = np.array(dots[f], dtype=np.float64).reshape(-1, 2)
+        np.testing.assert_allclose(got_dots, rec.particle_corners[dotted].mean(axis=1), atol=q / 2 + 1e-4)
+        np.testing.assert_array_equal(np.array(dot_colors[f], dtype=np.uint32), packed(LUT[level[dotted]]))
         # The top-k: the highest weights, exactly, with their particle indices and corners.
         k = LoggerConfig().top_k
         idx = np.argsort(-w, kind="stable")[:k]

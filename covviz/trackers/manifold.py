@@ -310,6 +310,13 @@ SEARCH_SPACE: dict[str, tuple[float, float, str]] = {
     "kinematics.velocity_decay": (0.5, 1.0, "linear"),
     "observation.colour_weight": (0.0, 30.0, "linear"),  # 0: off (as in the paper)
     "observation.grad_floor": (0.0, 0.9, "linear"),  # 0: no floor
+    # the adaptive diffusion (covviz.model.adaptive): where the evidence starts, what it drives
+    "adaptive.z_lo": (1.5, 6.0, "linear"),  # z_hi stays 8: always above
+    "adaptive.jump_prob": (0.1, 0.8, "linear"),
+    "adaptive.jump_spread": (1.0, 5.0, "linear"),
+    "adaptive.template_slow": (0.0, 1.0, "linear"),
+    "adaptive.redetect_fraction": (0.0, 0.5, "linear"),
+    "adaptive.redetect_radius": (0.5, 5.0, "log"),
 }
 
 

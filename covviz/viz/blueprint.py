@@ -102,7 +102,7 @@ def build_blueprint(
         visual_bounds=bounds,
         # All particles drawn hide the target: only the top ones by default (toggle 'particles' to see all).
         overrides={
-            **{f"/{p.particles}": rrb.EntityBehavior(visible=False) for p in pp},
+            **{f"/{path}": rrb.EntityBehavior(visible=False) for p in pp for path in (p.particles, p.particle_dots)},
             # One likelihood map at a time (two overlap into noise): the focused tracker's.
             **{f"/{path}": rrb.EntityBehavior(visible=False) for p in cp if p.name != shown
                for path in (p.likelihood, p.likelihood_peak, p.likelihood_region, p.likelihood_bar,

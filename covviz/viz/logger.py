@@ -121,6 +121,10 @@ class LoggerConfig:
         JPEG quality of the frames (1-100).
     particle_precision : float
         Particle corners and centres are rounded to this many pixels.
+    box_weight : float
+        Particles with at least this share of the largest weight are drawn as their regions
+        (``video/particles``), the others as dots at their centres (``video/particle_dots``);
+        0: every particle as its region.
     seed : int
         Seed of the logger's own randomness (the sample of templates in the MDS).
     diagnosis : DiagnosisConfig
@@ -146,6 +150,7 @@ class LoggerConfig:
     likelihood_reach: float = 1.0
     jpeg_quality: int = 60
     particle_precision: float = 0.5
+    box_weight: float = 0.1
     seed: int = 0
     diagnosis: DiagnosisConfig = field(default_factory=DiagnosisConfig)
     dense_before: int = 16
@@ -578,9 +583,18 @@ class RerunLogger(Observer):
             wn = w / w.max()
             level = weight_levels(w)
             order = np.argsort(level, kind="stable")  # heavy particles drawn last (on top)
-            strips = (np.round(closed_strips(pc[order]) / q) * q).astype(np.float32)
+            # Regions for the particles that carry weight; the centres of the others (most of the
+            # recording's bytes were 600 rectangles a frame whose weight is invisible at the frame's scale).
+            heavy = wn[order] >= cfg.box_weight
+            boxed, dotted = order[heavy], order[~heavy]
+            strips = (np.round(closed_strips(pc[boxed]) / q) * q).astype(np.float32)
             rec.log(
-                p.particles, rr.LineStrips2D(strips, colors=s.lut[level[order]], radii=0.2, draw_order=20.0)
+                p.particles, rr.LineStrips2D(strips, colors=s.lut[level[boxed]], radii=0.2, draw_order=20.0)
+            )
+            rec.log(
+                p.particle_dots,
+                rr.Points2D(np.round(pc[dotted].mean(axis=1) / q) * q, radii=0.6, colors=s.lut[level[dotted]],
+                            draw_order=19.0),
             )
             top = top_k(w, cfg.top_k)
             top_any = {"weight": w[top].astype(np.float64), "particle": top.astype(np.int64)}
@@ -640,7 +654,7 @@ class RerunLogger(Observer):
                 if contrib:
                     self._log_terms(s, w, dist, contrib)
         elif s.had_particles:
-            for path in (p.particles, p.top, p.centres):
+            for path in (p.particles, p.particle_dots, p.top, p.centres):
                 rec.log(path, rr.Clear(recursive=False))
 
     def _log_terms(self, s: _TrackerState, w: np.ndarray, dist: np.ndarray, contrib: dict) -> None:

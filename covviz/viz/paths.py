@@ -9,7 +9,9 @@ The entity tree::
     video/ground_truth               Boxes2D: the ground-truth box
     trackers/<name>/video/box        Boxes2D: the estimate as scored (axis-aligned)
     trackers/<name>/video/region     LineStrips2D: the estimated (rotated) region
-    trackers/<name>/video/particles  LineStrips2D: every particle's region, coloured by weight
+    trackers/<name>/video/particles  LineStrips2D: the region of every particle with at least
+                                     LoggerConfig.box_weight of the largest weight, coloured by weight
+    trackers/<name>/video/particle_dots  Points2D: the centres of the lighter ones, coloured the same way
     trackers/<name>/video/top        LineStrips2D: the top-k particles, bold
     trackers/<name>/video/centres    Points2D: particle centres, sized by weight
     trackers/<name>/video/likelihood Image: the likelihood map around the estimate (placed by a Transform3D)
@@ -120,6 +122,10 @@ class TrackerPaths:
     @property
     def particles(self) -> str:
         return f"{self.video}/particles"
+
+    @property
+    def particle_dots(self) -> str:
+        return f"{self.video}/particle_dots"
 
     @property
     def top(self) -> str:
