@@ -16,7 +16,7 @@ Prints, and writes as JSON with ``--json``:
 * wall-clock and CPU time per frame (CPU = ``time.process_time``: all threads
   of the process, including Rerun's encoder and writer, and BLAS worker
   threads) of the two kinds of run, and the traced/untraced ratios (target ≤
-  1.5). On a shared machine these swing with other load, so the script also
+  1.3). On a shared machine these swing with other load, so the script also
   accounts CPU inside each run: the tracker's ``init``/``update`` and the
   logger's ``on_frame`` (main-thread CPU time) and the extra CPU of the other
   threads (Rerun's encoder and writer), and reports ``1 + (logger + extra
@@ -53,7 +53,7 @@ from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz.logger import LoggerConfig, RerunLogger
 from covviz.viz.sinks import attach_sinks, new_recording
 
-TARGET_RATIO = 1.5
+TARGET_RATIO = 1.3  # issue 23 (it was 1.5)
 TARGET_MB_PER_1000 = 30.0
 
 
