@@ -269,3 +269,20 @@ def test_score_suspects():
     # frame 48 is in [50 - 10, 60 + 5]; frame 90 is in [100 - 10, 120 + 5]; frame 5 in none
     assert res == {"true_positives": 2, "suspects": 3, "losses": 2, "losses_found": 2}
     assert score_suspects([], [(50, 60)])["losses_found"] == 0
+
+
+def test_a_nearest_miss_whose_measure_passed_says_which_condition_failed():
+    """'fast motion at 164% of its threshold' read as if the rule had held: the card says what did not."""
+    from covviz.diagnosis.drift import CAUSES, _card
+
+    class Evidence(dict):  # the card words every cause; the ones not under test read as nan
+        def __missing__(self, key):
+            return float("nan")
+
+    ev = Evidence(nearest_rule=CAUSES.index("fast_motion"), nearest_rule_share=1.64, nearest_particle_at_jump=0.31,
+                  frames_ess_low=0)
+    text = _card("unknown", (), 105, 102, ev, {"model": 1}, None)
+    assert "fast motion: its measure passed its threshold (164%) but the rule did not hold" in text
+    assert "0.31 target sizes from the jump" in text and "at 164% of its threshold" not in text
+    ev["nearest_rule_share"] = 0.8
+    assert "Nearest: fast motion at 80% of its threshold." in _card("unknown", (), 105, 102, ev, {"model": 1}, None)

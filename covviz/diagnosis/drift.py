@@ -749,8 +749,17 @@ def _card(cause, also, lost_at, drift_began, ev, labels, last: FrameEvidence) ->
         s += f" {cause.replace('_', ' ')} held by {ev.get(f'strength_{cause}', float('nan')):.2f}x."
     if cause == "unknown" and "nearest_rule" in ev:
         near = CAUSES[int(ev["nearest_rule"])]
-        s += (f" Nearest: {near.replace('_', ' ')} at {ev['nearest_rule_share']:.0%} of its threshold"
-              + (f" (the box {_fmt(scale_ratio_of(ev))}x the truth's size)" if near == "scale" else "") + ".")
+        share = ev["nearest_rule_share"]
+        if share >= 1:  # its measure passed, a second condition of the rule did not: say which
+            other = {
+                "fast_motion": f": a particle was {_fmt(ev.get('nearest_particle_at_jump', np.nan))} target sizes "
+                               "from the jump, within the particles' reach",
+            }.get(near, " (read the rule's other conditions in the evidence)")
+            s += (f" Nearest: {near.replace('_', ' ')}: its measure passed its threshold ({share:.0%}) but the rule "
+                  f"did not hold{other}.")
+        else:
+            s += (f" Nearest: {near.replace('_', ' ')} at {share:.0%} of its threshold"
+                  + (f" (the box {_fmt(scale_ratio_of(ev))}x the truth's size)" if near == "scale" else "") + ".")
     gaps = {k[4:]: v for k, v in ev.items() if k.startswith("gap_") and np.isfinite(v)}
     if len(gaps) > 1:  # the likelihood has terms: say which preferred the estimate's place
         parts = sorted(gaps.items(), key=lambda kv: -kv[1])
