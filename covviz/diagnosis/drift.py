@@ -751,10 +751,9 @@ def _card(cause, also, lost_at, drift_began, ev, labels, last: FrameEvidence) ->
         near = CAUSES[int(ev["nearest_rule"])]
         share = ev["nearest_rule_share"]
         if share >= 1:  # its measure passed, a second condition of the rule did not: say which
-            other = {
-                "fast_motion": f": a particle was {_fmt(ev.get('nearest_particle_at_jump', np.nan))} target sizes "
-                               "from the jump, within the particles' reach",
-            }.get(near, " (read the rule's other conditions in the evidence)")
+            other = (f": a particle was {_fmt(ev.get('nearest_particle_at_jump', np.nan))} target sizes from the "
+                     "jump, within the particles' reach" if near == "fast_motion"
+                     else " (read the rule's other conditions in the evidence)")
             s += (f" Nearest: {near.replace('_', ' ')}: its measure passed its threshold ({share:.0%}) but the rule "
                   f"did not hold{other}.")
         else:

@@ -335,14 +335,20 @@ def _order(names, preferred) -> list[str]:
     return [t for t in preferred if t in names] + sorted(names - set(preferred))
 
 
-def _table(rows: list[tuple[str, str, dict[str, Stat], Stat, Stat]]) -> list[str]:
-    """Markdown table; the best mean of each metric column is bold."""
+def _table_head(rows) -> tuple[list[str], dict[str, float]]:
+    """The overall table's column titles, and the best mean of each metric column (to set in bold)."""
     head = ["tracker", "runs"] + [title for _, title, _ in COLUMNS] + ["fps", "failed frames"]
     best = {}
     for key, _, higher in COLUMNS:
         means = [r[2][key].mean for r in rows if np.isfinite(r[2][key].mean)]
         if len(rows) > 1 and means:
             best[key] = max(means) if higher else min(means)
+    return head, best
+
+
+def _table(rows: list[tuple[str, str, dict[str, Stat], Stat, Stat]]) -> list[str]:
+    """Markdown table; the best mean of each metric column is bold."""
+    head, best = _table_head(rows)
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] * 2 + ["---:"] * (len(head) - 2)) + "|"]
     for name, runs, stats, fps, failed in rows:
         cells = [f"`{name}`", runs]
@@ -947,12 +953,7 @@ def _tex(text: str) -> str:
 
 def _latex_table(rows, caption: str, label: str) -> list[str]:
     """One table of :func:`_table`'s rows in LaTeX (booktabs), the best mean of each metric in bold."""
-    head = ["tracker", "runs"] + [title for _, title, _ in COLUMNS] + ["fps", "failed frames"]
-    best = {}
-    for key, _, higher in COLUMNS:
-        means = [r[2][key].mean for r in rows if np.isfinite(r[2][key].mean)]
-        if len(rows) > 1 and means:
-            best[key] = max(means) if higher else min(means)
+    head, best = _table_head(rows)
     L = [r"\begin{table}[t]", r"\centering", r"\small", r"\begin{tabular}{ll" + "r" * (len(head) - 2) + "}",
          r"\toprule", " & ".join(_tex(h) for h in head) + r" \\", r"\midrule"]
     for name, runs, stats, fps, failed in rows:

@@ -633,7 +633,8 @@ class ManifoldTracker:
         km = adapted_kinematics(cfg.kinematics, e, cfg.adaptive)
         states, modes = propagate_kinematics(ps.states, km, model.base_size, self.rng)
         anchor = self.anchor
-        sigma = self._sigma if e == 0.0 else self._sigma * (1.0 - cfg.adaptive.template_slow * e)
+        walk_factor = 1.0 - cfg.adaptive.template_slow * e  # on the template walk's sigma (1: no evidence)
+        sigma = self._sigma if e == 0.0 else self._sigma * walk_factor
         templates = template_walk(
             ps.templates, sigma, self.rng, None if anchor is None else anchor.template, cfg.anchor_pull
         )
@@ -755,7 +756,7 @@ class ManifoldTracker:
             inputs=FrameInputs(gray, cmap, colour_state, qstate),
             pose_search=search,
             diffusion=None if adapt is None else Diffusion(
-                e, km.mode_probs[1], 1.0 - cfg.adaptive.template_slow * e, n_fresh, self.adapt.evidence,
+                e, km.mode_probs[1], walk_factor, n_fresh, self.adapt.evidence,
                 self.adapt.z, self.adapt.lost,
             ),
         )

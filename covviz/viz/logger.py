@@ -535,7 +535,7 @@ class RerunLogger(Observer):
         est_t = self._log_heatmap(s, record, i, problems)
         self._log_timings(s, record)
         if found is not None:
-            why.log_evidence(self.stream, s.paths, found.evidence, s.model is not None)
+            why.log_evidence(self.series, s.paths, found.evidence, s.model is not None)
         self._log_zoom(s, frame, record, gt, prepared_cache)
         dense = i <= s.dense_until
         self._log_diagnostics(s, frame, record, box, gt, est_t, prepared_cache, problems, dense)

@@ -185,22 +185,26 @@ def _log_slice_axes(rec, p: P.TrackerPaths, color=(255, 196, 0), truth_color=(23
 # --------------------------------------------------------------------------- #
 # per frame
 # --------------------------------------------------------------------------- #
-def log_evidence(rec: rr.RecordingStream, p: P.TrackerPaths, ev: FrameEvidence, with_model: bool) -> None:
-    """The per-frame evidence of the diagnosis: the likelihood at the truth and the estimate, reach, label."""
+def log_evidence(series, p: P.TrackerPaths, ev: FrameEvidence, with_model: bool) -> None:
+    """The per-frame evidence of the diagnosis: the likelihood at the truth and the estimate, reach, label.
+
+    ``series`` is the recorder's :class:`~covviz.viz.series.SeriesBuffer` (the values go out with its
+    other per-frame scalars, as columns).
+    """
     if np.isfinite(ev.reach):
-        rec.log(p.why_series("reach"), rr.Scalars(ev.reach))
+        series.add(p.why_series("reach"), ev.reach)
     if not with_model:
         return
     for key in SERIES:
         v = getattr(ev, key)
         if np.isfinite(v):
-            rec.log(p.why_series(key), rr.Scalars(float(v)))
+            series.add(p.why_series(key), float(v))
     # Each part of d_eff² at the truth minus at the estimate (> 0: that part preferred the estimate's place).
     for k, v in (ev.term_gaps or {}).items():
         if np.isfinite(v):
-            rec.log(p.why_series(f"gap_{k}"), rr.Scalars(float(v)))
+            series.add(p.why_series(f"gap_{k}"), float(v))
     if ev.label in LABEL_STYLE and np.isfinite(ev.best_truth):
-        rec.log(p.why_label(ev.label), rr.Scalars(float(ev.best_truth)))
+        series.add(p.why_label(ev.label), float(ev.best_truth))
 
 
 def zoom_image(patches: list[np.ndarray | None], gap: int = 2) -> np.ndarray:
