@@ -47,8 +47,8 @@ def loso_tables(runs, rng) -> list[str]:
 
     main = [
         ("| tracker | runs | losses | PR-AUC (off-track share) | alarms | precision [95% CI] | recall [95% CI] "
-        "| median lead (frames) | false alarms / 1000 on-track |"),
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| median lead (frames) | false alarms / 1000 on-track | design (folds) |"),
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     base = [
         "| tracker | method | PR-AUC | alarms | precision | recall | median lead | false / 1000 |",
@@ -66,10 +66,12 @@ def loso_tables(runs, rng) -> list[str]:
         found[tr] = {"model": s}
         fp = {q: sum(c["fp"] for _, c, _ in v) for q, v in res["model"].items()}
         found[tr]["_fp_by_sequence"] = dict(sorted(fp.items(), key=lambda kv: -kv[1]))
+        ds = list(res.get("designs", {}).values())
+        design = ", ".join(f"{d} {ds.count(d)}" for d in sorted(set(ds), key=lambda d: -ds.count(d)))
         main.append(
             f"| `{tr}` | {s['runs']} | {s['losses']} | {_num(s['pr_auc'])} ({_pct(s['base_rate'])}) | {s['alarms']} "
             f"| {_pct(s['precision'])}{_ci(s['precision_ci'])} | {_pct(s['recall'])}{_ci(s['recall_ci'])} "
-            f"| {_num(s['lead'], 0)} | {_num(s['false_per_1000'], 1)} |"
+            f"| {_num(s['lead'], 0)} | {_num(s['false_per_1000'], 1)} | {design} |"
         )
         for name in ["model", *BASELINES]:
             b = summarise(res[name], rng) if res.get(name) else {}
@@ -182,10 +184,14 @@ def main(argv=None) -> int:
         "",
         ("Written by `python scripts/drift_eval.py BENCH_DIR --write docs/results.md` (the bench command is in "
         "`docs/tuning.md`). Every tracker carries per-frame label-free signals (`covviz/diagnosis/signals.py`); a "
-        "logistic model per tracker family turns them and their last 5–10 frames into a drift probability, and an "
-        "alarm is raised when it crosses a threshold (once per episode, hysteresis). Strictly **leave-one-sequence-"
-        "out**: for each of the 14 dev sequences the model is fitted, and its threshold and hysteresis chosen, on "
-        "the other 13 only; each single signal used as a baseline gets its own threshold on the same training "
+        "logistic model per tracker family turns them into a drift probability, and an alarm is raised when it "
+        "crosses a threshold (once per episode, hysteresis). The model reads the signals in one of two feature "
+        "designs (`covviz/diagnosis/detector.py`): *levels* (each signal, its mean over the last 5 frames, its "
+        "max over the last 10, some over their early-run median) or *changes* (each signal's robust z-score "
+        "against its own frames t−35…t−6). Strictly **leave-one-sequence-out**: for each of the 14 dev sequences "
+        "the design is chosen (leave-one-sequence-out over the 13 training sequences, by the alarm rule's "
+        "own order), the model fitted, and its threshold and hysteresis chosen, on the other 13 only; the last column "
+        "says which design the 14 folds chose. Each single signal used as a baseline gets its own threshold on the same training "
         "sequences by the same rule (the most event recall at a training precision ≥ 50%, else the best F1). "
         f"Runs: seeds {', '.join(map(str, seeds))} of the particle filters, one run of each OpenCV tracker "
         "(deterministic); the OpenCV family's model is fitted on csrt, kcf and mil together."),

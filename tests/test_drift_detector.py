@@ -15,6 +15,7 @@ from covviz.diagnosis.calibrate import (
     Run,
     alarm_frames,
     choose_alarm,
+    choose_design,
     fit_model,
     load_runs,
     losses_of,
@@ -160,7 +161,71 @@ def test_fit_model_learns_the_informative_signal_and_round_trips_json(rng, tmp_p
     assert p[runs[0].off].mean() > 0.8 and p[~runs[0].off].mean() < 0.2
     m2 = DriftModel.load(m.save(tmp_path / "m.json"))
     np.testing.assert_allclose(m2.predict_run(runs[1].rows), m.predict_run(runs[1].rows), rtol=1e-5, atol=1e-6)
-    assert json.loads((tmp_path / "m.json").read_text())["version"] == 1
+    doc = json.loads((tmp_path / "m.json").read_text())
+    assert doc["version"] == 2 and doc["design"] == "levels" == m2.design
+
+
+def test_a_version_1_file_reads_as_the_levels_design(rng, tmp_path):
+    runs = _labelled_runs(rng)
+    m = fit_model(runs, "manifold")
+    doc = m.as_dict()
+    doc["version"] = 1
+    del doc["design"]
+    (tmp_path / "v1.json").write_text(json.dumps(doc))
+    m1 = DriftModel.load(tmp_path / "v1.json")
+    assert m1.design == "levels"
+    np.testing.assert_allclose(m1.predict_run(runs[0].rows), m.predict_run(runs[0].rows), rtol=1e-5, atol=1e-6)
+    doc["design"], doc["version"] = "trends", 2
+    (tmp_path / "bad.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="broken drift model"):
+        DriftModel.load(tmp_path / "bad.json")
+
+
+def test_changes_features_are_robust_z_scores_against_the_signals_own_past(rng):
+    from covviz.diagnosis.detector import CHANGE_LAG, CHANGE_MIN, CHANGE_WINDOW
+
+    n = 90
+    rows = rng.normal(5.0, 2.0, (n, 2))
+    rows[rng.random((n, 2)) < 0.15] = np.nan  # gaps: a signal that does not apply on some frames
+    f = history_features(rows, ("motion", "fb_error"), "changes")
+    assert f.shape == (n, 2)
+    for t in range(n):
+        for j in range(2):
+            w = rows[max(0, t - CHANGE_LAG - CHANGE_WINDOW): max(0, t - CHANGE_LAG), j]
+            w = w[np.isfinite(w)]
+            if len(w) < CHANGE_MIN or not np.isfinite(rows[t, j]):
+                assert np.isnan(f[t, j])
+                continue
+            m = np.median(w)
+            mad = 1.4826 * np.median(np.abs(w - m))
+            assert f[t, j] == pytest.approx(np.arcsinh((rows[t, j] - m) / (mad + 1e-3 * abs(m) + 1e-6)), rel=1e-12)
+    # shifting a signal's level or scaling it changes nothing: it is the run's own scale
+    g = history_features(3.0 * rows + 100.0, ("motion", "fb_error"), "changes")
+    np.testing.assert_allclose(np.sinh(g), np.sinh(f), rtol=0.05, equal_nan=True)
+
+
+def _shifted_runs(rng, n=240):
+    """Eight sequences whose signal sits at a different level in each, and jumps when the track is lost."""
+    runs = []
+    k = SIGNALS.index("fb_error")
+    for j in range(8):
+        lost = 120 + 10 * (j % 3)
+        iou = np.r_[np.full(lost, 0.8), np.full(30, 0.02), np.full(n - lost - 30, 0.8)]
+        rows = rng.normal(0, 1, (n, len(SIGNALS))) * 0.1
+        level = 2.0 * j  # each scene's own level
+        rows[:, k] = level + rng.normal(0, 0.3, n)
+        rows[lost - 2: lost + 8, k] += 3.0
+        runs.append(_run(iou, rows, seq=f"S{j}"))
+    return runs
+
+
+def test_choose_design_prefers_changes_when_levels_do_not_carry_over(rng):
+    runs = _shifted_runs(rng)
+    design, held_out = choose_design(runs, "manifold", SIGNALS)
+    assert design == "changes"
+    assert held_out["changes"]["recall"] > held_out["levels"]["recall"] or (
+        held_out["changes"]["precision"] > held_out["levels"]["precision"])
+    assert choose_design(runs[:1], "manifold", SIGNALS) == ("changes", {})
 
 
 def test_fit_model_refuses_runs_without_losses(rng):

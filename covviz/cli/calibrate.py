@@ -18,8 +18,11 @@ examples:
 
 The runs need ground truth (a frame is off track when its IoU is below 0.5) and the
 per-frame signals that covviz bench saves (diagnosis.signals); no tracker is re-run.
-The model is a logistic regression on the signals and their short history; its alarm
-threshold and hysteresis are chosen on the same runs (see covviz/diagnosis/calibrate.py).
+The model is a logistic regression on the signals, in one of two feature designs:
+their levels and short history, or their changes (each signal's robust z-score against
+its own last 30 frames, which carries over between scenes). --design auto picks the
+one whose alarms hold up best on sequences held out in turn; the alarm threshold and
+hysteresis are chosen on the same runs (see covviz/diagnosis/calibrate.py).
 """
 
 
@@ -63,12 +66,14 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
                    help="instead: one model per tracker family found (DIR/FAMILY.json) plus DIR/generic.json")
     p.add_argument("--trackers", metavar="NAME[,NAME…]", help="only these trackers' runs (default: all)")
     p.add_argument("--seeds", type=_seeds, metavar="LIST", help="only these seeds of stochastic trackers, e.g. 0-2")
+    p.add_argument("--design", choices=("auto", "levels", "changes"), default="auto",
+                   help="feature design (default auto: chosen by cross-validation over the runs' sequences)")
     p.set_defaults(func=cmd_calibrate)
     return p
 
 
 def cmd_calibrate(args) -> int:
-    from covviz.diagnosis.calibrate import fit_families, fit_model, load_runs
+    from covviz.diagnosis.calibrate import fit_design, fit_families, fit_model, load_runs
     from covviz.diagnosis.detector import family_of
 
     if (args.out is None) == (args.all_families is None):
@@ -76,18 +81,20 @@ def cmd_calibrate(args) -> int:
     trackers = None if args.trackers is None else set(args.trackers.split(","))
     runs = load_runs(args.bench_dir, trackers, args.seeds)
     info = {"id": f"{args.bench_dir.name}"}
+    design = None if args.design == "auto" else args.design
     if args.all_families is not None:
-        for fam, m in fit_families(runs, info).items():
+        for fam, m in fit_families(runs, info, design).items():
             path = m.save(args.all_families / f"{fam}.json")
             print(f"{fam}: {_describe(m)} -> {path}")
         return 0
     fams = {family_of(r.tracker) for r in runs}
-    m = fit_model(runs, fams.pop() if len(fams) == 1 else "generic", fit_info=info)
+    fam = fams.pop() if len(fams) == 1 else "generic"
+    m = fit_design(runs, fam, fit_info=info) if design is None else fit_model(runs, fam, fit_info=info, design=design)
     print(f"{m.family}: {_describe(m)} -> {m.save(args.out)}")
     return 0
 
 
 def _describe(m) -> str:
     f = m.fit
-    return (f"{f['runs']} runs, {f['frames']} frames ({f['off_track_frames']} off track), {f['losses']} losses; "
+    return (f"{m.design} design, {f['runs']} runs, {f['frames']} frames ({f['off_track_frames']} off track), {f['losses']} losses; "
             f"alarm at p >= {m.alarm.threshold:.3f}, released below {m.alarm.release:.3f}")
