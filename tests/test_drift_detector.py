@@ -268,6 +268,9 @@ def test_describe_alarm():
     a = {"frame": 63, "until": 80, "probability": 0.8, "peak": 0.91, "drivers": ["fb_error", "ess"],
          "signals": {"fb_error": 0.4, "ess": 0.01}}
     assert describe_alarm(a) == "frames 63–80: likely off track, p 0.91 — FB error 0.4 box, ESS 0.01"
+    a["usual"] = {"fb_error": 0.0021, "ess": 0.31}
+    assert describe_alarm(a) == ("frames 63–80: likely off track, p 0.91 — FB error 0.4 box (usually 0.0021), "
+                                 "ESS 0.01 (usually 0.31)")
 
 
 # --------------------------------------------------------------------------- #
@@ -286,12 +289,37 @@ class _NoTruth(Sequence):
         return self._seq._read(i)
 
 
-def _model_for(signals, rng) -> DriftModel:
+def _model_for(signals, rng, design="levels") -> DriftModel:
     from covviz.diagnosis.detector import feature_names
 
-    k = len(feature_names(signals))
+    k = len(feature_names(signals, design))
     return DriftModel("generic", tuple(signals), np.zeros(k), np.ones(k), rng.normal(0, 0.5, k), -1.0,
-                      Hysteresis(0.6, 0.4, 3))
+                      Hysteresis(0.6, 0.4, 3), design=design)
+
+
+def test_alarms_of_a_changes_model_say_what_each_driver_usually_was(rng):
+    from covviz.data.sequences import open_sequence
+    from covviz.runner import run
+    from covviz.trackers import make_tracker
+
+    model = _model_for(SIGNALS, rng, "changes")
+    model = DriftModel(model.family, model.signals, model.center, model.scale, np.abs(model.coef), 0.0,
+                       Hysteresis(0.55, 0.5, 3), design="changes")  # every unusual frame pushes up: alarms
+    w = DriftWatch(model)
+    run(make_tracker("manifold", seed=0, n_particles=100), open_sequence(None), [w], max_frames=80, seed=0)
+    rep = w.report(0)
+    assert rep["alarms"]
+    sig = np.array([[np.nan if v is None else v for v in rep["signals"][k]] for k in SIGNALS]).T
+    feats = history_features(sig, SIGNALS, "changes")
+    for a in rep["alarms"]:
+        f = a["frame"] - 1
+        assert set(a["z"]) <= set(a["drivers"]) and set(a["usual"]) <= set(a["drivers"])
+        for k, z in a["z"].items():
+            assert z == pytest.approx(np.sinh(feats[f, SIGNALS.index(k)]), rel=1e-3, abs=0.01)
+        for k, u in a["usual"].items():  # the median of the signal's window behind frame f
+            col = sig[max(0, f - 35): f - 5, SIGNALS.index(k)]
+            assert u == pytest.approx(np.median(col[np.isfinite(col)]), rel=1e-3, abs=1e-6)
+        assert "(usually " in describe_alarm(a) or not a["usual"]
 
 
 @pytest.mark.parametrize("tracker", ["manifold", "kcf"])

@@ -172,6 +172,7 @@ class _Changes:
         self.k = len(signals)
         self.past = np.full((CHANGE_WINDOW + CHANGE_LAG, self.k), np.nan)  # oldest first
         self.n = 0
+        self.usual = np.full(self.k, np.nan)  # the window's median behind the last row's z-scores
 
     def push(self, row: np.ndarray) -> np.ndarray:
         import warnings
@@ -193,6 +194,7 @@ class _Changes:
                 mad[j] = 1.4826 * np.median(np.abs(w - m[j]))
             use = (cnt >= CHANGE_MIN) & np.isfinite(row)
             out[use] = np.arcsinh((row[use] - m[use]) / (mad[use] + 1e-3 * np.abs(m[use]) + 1e-6))
+            self.usual = np.where(cnt >= CHANGE_MIN, m, np.nan)
         self.past[:-1] = self.past[1:]
         self.past[-1] = row
         self.n += 1
@@ -501,6 +503,11 @@ class DriftWatch(Observer):
                     "until": int(frame.index) + 1,
                     "peak": round(p, 4),
                 }
+                if w.model.design == "changes":  # what each driver usually was in this run, and its z-score
+                    z = dict(zip(w.model.signals, np.sinh(feats)))
+                    usual = dict(zip(w.model.signals, w.history.usual))
+                    a["z"] = {k: float(f"{z[k]:.4g}") for k in drivers if np.isfinite(z[k])}
+                    a["usual"] = {k: float(f"{usual[k]:.4g}") for k in drivers if np.isfinite(usual[k])}
                 w.alarms.append(a)
                 self.new[j].append(a)
         self.model_cpu += time.thread_time() - t1
@@ -541,7 +548,11 @@ class DriftWatch(Observer):
 
 
 def describe_alarm(a: dict) -> str:
-    """One line for a terminal: ``frames 63–80: likely off track, p 0.91 — FB error 0.4 box, ESS 0.01``."""
+    """One line for a terminal: ``frames 63–80: likely off track, p 0.91 — FB error 0.4 box, ESS 0.01``.
+
+    An alarm of the ``changes`` design also says what each value usually was in the run (the median
+    of its window): ``ESS 0.01 (usually 0.31)``.
+    """
     span = f"frame {a['frame']}" if a.get("until", a["frame"]) == a["frame"] else f"frames {a['frame']}–{a['until']}"
     parts = []
     for k in a.get("drivers", [])[:2]:
@@ -549,7 +560,8 @@ def describe_alarm(a: dict) -> str:
         if v is None:
             continue
         name, unit = LABELS.get(k, (k, ""))
-        parts.append(f"{name} {v:.2g}{unit}")
+        u = a.get("usual", {}).get(k)
+        parts.append(f"{name} {v:.2g}{unit}" + ("" if u is None else f" (usually {u:.2g})"))
     return f"{span}: likely off track, p {a.get('peak', a['probability']):.2f}" + (
         " — " + ", ".join(parts) if parts else "")
 
