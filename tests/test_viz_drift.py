@@ -31,3 +31,14 @@ def test_track_logs_the_drift_probability_and_alarm_rows(tmp_path, capsys):
     rows = json.loads(capsys.readouterr().out)
     assert [r["frame"] for r in rows] == [1]
     assert "likely off track, p 0.50" in rows[0]["text"]
+    # The probability on every frame, and the alarm threshold as a flat line under it (frames 1, 11 and the last).
+    from viz_helpers import read_recording
+
+    from covviz.viz.drift import probability_path, threshold_path
+
+    temporal, static = read_recording(rrd)
+    prob = temporal[probability_path("manifold")]["Scalars:scalars"]
+    assert sorted(prob) == list(range(1, 13)) and all(v[-1] == [0.5] for v in prob.values())
+    th = temporal[threshold_path("manifold")]["Scalars:scalars"]
+    assert {f: v[-1] for f, v in th.items()} == {1: [0.4], 11: [0.4], 12: [0.4]}
+    assert static[threshold_path("manifold")]["SeriesLines:names"] == ["alarm threshold"]

@@ -435,6 +435,11 @@ class DriftView:
     def config_dict(self) -> dict:
         return self._w.config_dict()
 
+    def threshold(self, index: int = 0) -> float | None:
+        """Tracker ``index``'s alarm threshold (None without a model)."""
+        w = self._w.watches[index] if index < len(self._w.watches) else None
+        return None if w is None or w.model is None else float(w.model.alarm.threshold)
+
 
 class DriftWatch(Observer):
     """Observer: the label-free signals of every tracker, its drift probability and alarms, frame by frame.

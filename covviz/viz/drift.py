@@ -6,6 +6,8 @@ what it found on the recorder's stream; it is separate from :class:`covviz.viz.l
 the detector's cost stays on its own thread. Entity paths:
 
     trackers/<name>/drift/probability   Scalars: the drift probability, every frame
+    trackers/<name>/drift/threshold     Scalars: the model's alarm threshold (every THRESHOLD_EVERY frames
+                                        and the last: a flat line under the curve, in the IoU plot)
     trackers/<name>/events              TextLog: "drift alarm" rows (WARN)
     trackers/<name>/event_records       AnyValues: kind "alarm" (``covviz events`` reads them back)
 """
@@ -22,11 +24,18 @@ from covviz.runner import Observer
 from covviz.viz import paths as P
 from covviz.viz.description import viewer_safe
 
-__all__ = ["DriftRecorder", "probability_path"]
+__all__ = ["DriftRecorder", "probability_path", "threshold_path"]
+
+#: The threshold's line is drawn through a point every this many frames (and the last).
+THRESHOLD_EVERY = 10
 
 
 def probability_path(tracker: str) -> str:
     return f"{P.TrackerPaths(tracker).root}/drift/probability"
+
+
+def threshold_path(tracker: str) -> str:
+    return f"{P.TrackerPaths(tracker).root}/drift/threshold"
 
 
 class DriftRecorder(Observer):
@@ -35,19 +44,30 @@ class DriftRecorder(Observer):
     def __init__(self, stream: rr.RecordingStream) -> None:
         self.stream = stream
         self._paths: list[P.TrackerPaths] = []
+        self._thresholds: list[float | None] = []
+        self._last = None
 
     def on_start(self, start, found) -> None:
         self._paths = [P.TrackerPaths(P.tracker_entity(info.name)) for info in start.trackers]
+        view = getattr(found, "drift", None)
+        self._thresholds = [None if view is None else view.threshold(j) for j in range(len(self._paths))]
+        for paths, th in zip(self._paths, self._thresholds):
+            if th is not None:
+                self.stream.log(threshold_path(paths.name), rr.SeriesLines(
+                    names=["alarm threshold"], colors=[(150, 150, 150)], widths=[0.8]), static=True)
 
     def on_frame(self, frame, records, found) -> None:
         rec = self.stream
         rec.set_time(P.FRAME_TIMELINE, sequence=frame_number(frame.index))  # this thread's own time
         if frame.time is not None:
             rec.set_time(P.TIME_TIMELINE, duration=float(frame.time))
-        for paths, (p, new) in zip(self._paths, found.drift_news):
+        self._last = frame
+        for paths, th, (p, new) in zip(self._paths, self._thresholds, found.drift_news):
             if p is None:
                 continue
             rec.log(probability_path(paths.name), rr.Scalars(p))
+            if th is not None and frame.index % THRESHOLD_EVERY == 0:
+                rec.log(threshold_path(paths.name), rr.Scalars(th))
             for a in new:
                 text = f"drift alarm: {describe_alarm(a)} (label-free; drivers {', '.join(a['drivers']) or '-'})"
                 rec.log(paths.events, rr.TextLog(viewer_safe(f"[{paths.name}] {text}"),
@@ -56,4 +76,13 @@ class DriftRecorder(Observer):
                     tracker=[paths.name], kind=["alarm"], frame_number=[a["frame"]], level=["WARN"],
                     text=[viewer_safe(text)], cause=["drift"], details=[json.dumps(a, default=float)]))
 
-
+    def on_end(self, results, found) -> None:
+        frame = self._last
+        if frame is None or frame.index % THRESHOLD_EVERY == 0:
+            return
+        self.stream.set_time(P.FRAME_TIMELINE, sequence=frame_number(frame.index))
+        if frame.time is not None:
+            self.stream.set_time(P.TIME_TIMELINE, duration=float(frame.time))
+        for paths, th in zip(self._paths, self._thresholds):
+            if th is not None:
+                self.stream.log(threshold_path(paths.name), rr.Scalars(th))
