@@ -543,7 +543,8 @@ class DriftWatch(Observer):
         w = self.watches[index] if index < len(self.watches) else _Watch(None)
         out["drift_probability"] = [round(p, 4) for p in w.p] if w.model else []
         out["alarms"] = list(w.alarms)
-        out["detector"] = ({"family": w.model.family, "fit": w.model.fit.get("id", "")} if w.model else None)
+        out["detector"] = ({"family": w.model.family, "design": w.model.design, "fit": w.model.fit.get("id", "")}
+                           if w.model else None)
         if result is not None and len(result.boxes):
             from covviz.metrics import iou
 
