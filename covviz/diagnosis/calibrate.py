@@ -279,14 +279,13 @@ def choose_design(runs: list[Run], family: str, signals, feats: dict[str, list[n
     seqs = sorted({r.sequence for r in runs})
     if len(seqs) < 2:
         return "changes", {}
-    groups = [{q} for q in seqs]
     feats = feats or {d: _design(runs, signals, d) for d in DESIGNS}
     keys, scores = {}, {}
     for d in DESIGNS:
         counts = []
-        for g in groups:
-            tr = [i for i, r in enumerate(runs) if r.sequence not in g]
-            te = [i for i, r in enumerate(runs) if r.sequence in g]
+        for q in seqs:
+            tr = [i for i, r in enumerate(runs) if r.sequence != q]
+            te = [i for i, r in enumerate(runs) if r.sequence == q]
             try:
                 m = fit_model([runs[i] for i in tr], family, signals, [feats[d][i] for i in tr], design=d)
             except InputError:

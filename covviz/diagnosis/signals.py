@@ -49,6 +49,8 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
+from covviz.model.adaptive import robust_z
+
 __all__ = ["GENERIC_SIGNALS", "PARTICLE_SIGNALS", "SIGNALS", "SignalConfig", "SignalObserver", "fb_flow", "psr"]
 
 #: Signals of every tracker.
@@ -367,9 +369,7 @@ class SignalObserver:
                 dmin = float(np.min(d))
                 run = np.asarray(s.d_run)
                 if len(run) >= cfg.z_min:
-                    med = float(np.median(run))
-                    mad = 1.4826 * float(np.median(np.abs(run - med)))
-                    out["dmin_z"] = (dmin - med) / (mad + 1e-3 * max(abs(med), 1e-3))
+                    out["dmin_z"] = robust_z(dmin, run)[0]
                 s.d_run.append(dmin)
             T = _rec_templates(rec)
             if T is not None and L is not None and len(T) == n:

@@ -51,7 +51,8 @@ import numpy as np
 from covviz.config import ConfigError, Spec, check, from_mapping
 from covviz.model.dynamics import SCALE, THETA, VX, VY, KinematicModel, X, Y
 
-__all__ = ["ADAPTIVE_SPECS", "AdaptState", "AdaptiveDiffusion", "adapted_kinematics", "evidence", "redetect"]
+__all__ = ["ADAPTIVE_SPECS", "AdaptState", "AdaptiveDiffusion", "adapted_kinematics", "evidence", "redetect",
+           "robust_z"]
 
 
 @dataclass(frozen=True)
@@ -162,15 +163,23 @@ def _ro(a) -> np.ndarray:
     return a
 
 
+def robust_z(x: float, window) -> tuple[float, float, float]:
+    """``(z, m, scale)``: ``x``'s robust z-score against ``window`` (module docstring), its median and scale.
+
+    ``scale = 1.4826 · MAD + 10⁻³ · max(|m|, 10⁻³)``; the drift detector's ``dmin_z`` signal is the same score.
+    """
+    win = np.asarray(window, dtype=np.float64)
+    m = float(np.median(win))
+    s = 1.4826 * float(np.median(np.abs(win - m)))
+    scale = s + 1e-3 * max(abs(m), 1e-3)
+    return (x - m) / scale, m, scale
+
+
 def evidence(state: AdaptState, best: float, pose, template, cfg: AdaptiveDiffusion) -> AdaptState:
     """The state after a frame whose best likelihood distance was ``best`` and estimate ``pose`` / ``template``."""
-    win = np.asarray(state.window, dtype=np.float64)
     z, e, clipped = float("nan"), 0.0, best
-    if len(win) >= 3:
-        m = float(np.median(win))
-        s = 1.4826 * float(np.median(np.abs(win - m)))
-        scale = s + 1e-3 * max(abs(m), 1e-3)
-        z = (best - m) / scale
+    if len(state.window) >= 3:
+        z, m, scale = robust_z(best, state.window)
         clipped = min(best, m + cfg.z_hi * scale)
         if state.frames >= cfg.warmup:
             e = float(np.clip((z - cfg.z_lo) / (cfg.z_hi - cfg.z_lo), 0.0, 1.0))

@@ -19,7 +19,6 @@ import json
 import rerun as rr
 
 from covviz.diagnosis.detector import describe_alarm
-from covviz.records import frame_number
 from covviz.runner import Observer
 from covviz.viz import paths as P
 from covviz.viz.description import viewer_safe
@@ -49,7 +48,7 @@ class DriftRecorder(Observer):
 
     def on_start(self, start, found) -> None:
         self._paths = [P.TrackerPaths(P.tracker_entity(info.name)) for info in start.trackers]
-        view = getattr(found, "drift", None)
+        view = found.drift
         self._thresholds = [None if view is None else view.threshold(j) for j in range(len(self._paths))]
         for paths, th in zip(self._paths, self._thresholds):
             if th is not None:
@@ -58,9 +57,7 @@ class DriftRecorder(Observer):
 
     def on_frame(self, frame, records, found) -> None:
         rec = self.stream
-        rec.set_time(P.FRAME_TIMELINE, sequence=frame_number(frame.index))  # this thread's own time
-        if frame.time is not None:
-            rec.set_time(P.TIME_TIMELINE, duration=float(frame.time))
+        P.set_frame_time(rec, frame)  # this thread's own time
         self._last = frame
         for paths, th, (p, new) in zip(self._paths, self._thresholds, found.drift_news):
             if p is None:
@@ -80,9 +77,7 @@ class DriftRecorder(Observer):
         frame = self._last
         if frame is None or frame.index % THRESHOLD_EVERY == 0:
             return
-        self.stream.set_time(P.FRAME_TIMELINE, sequence=frame_number(frame.index))
-        if frame.time is not None:
-            self.stream.set_time(P.TIME_TIMELINE, duration=float(frame.time))
+        P.set_frame_time(self.stream, frame)
         for paths, th in zip(self._paths, self._thresholds):
             if th is not None:
                 self.stream.log(threshold_path(paths.name), rr.Scalars(th))

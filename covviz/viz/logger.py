@@ -507,9 +507,7 @@ class RerunLogger(Observer):
 
     def _set_time(self, frame) -> None:
         """Put the stream at ``frame`` on both timelines (``frame``: 1-based numbers; ``time``: seconds)."""
-        self.stream.set_time(P.FRAME_TIMELINE, sequence=frame_number(frame.index))
-        if frame.time is not None:
-            self.stream.set_time(P.TIME_TIMELINE, duration=float(frame.time))
+        P.set_frame_time(self.stream, frame)
         self.series.at(frame_number(frame.index), frame.time)
 
     def _warn(self, s: _TrackerState, problems: list[str]) -> None:

@@ -54,6 +54,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from covviz.records import frame_number
+
 __all__ = [
     "CONFIG",
     "DESCRIPTION",
@@ -68,10 +70,18 @@ __all__ = [
     "TRACKERS",
     "VIDEO",
     "TrackerPaths",
+    "set_frame_time",
 ]
 
 FRAME_TIMELINE = "frame"
 TIME_TIMELINE = "time"
+
+
+def set_frame_time(stream, frame) -> None:
+    """Put ``stream`` (this thread's time of it) at ``frame``: its 1-based number, and its seconds if it has them."""
+    stream.set_time(FRAME_TIMELINE, sequence=frame_number(frame.index))
+    if frame.time is not None:
+        stream.set_time(TIME_TIMELINE, duration=float(frame.time))
 
 DESCRIPTION = "description"
 CONFIG = "config"
