@@ -162,7 +162,10 @@ def test_sigkill_leaves_partial_results_and_a_recording_rerun_can_open(tmp_path)
     proc, js, rrd = start_track(tmp_path)
     wait_for(proc, js.is_file)
     first = json.loads(js.read_text())["n_frames"]
-    time.sleep(2.5)  # a few more partial writes, and a few 1-s batches of the recording
+    # A later partial write (waited for, not slept for: a cold machine may spend seconds on one
+    # frame's first compile or import), then a few 1-s batches of the recording.
+    wait_for(proc, lambda: json.loads(js.read_text())["n_frames"] > first)
+    time.sleep(1.5)
     proc.send_signal(signal.SIGKILL)
     code, _, _ = finish(proc)
     assert code == -signal.SIGKILL
