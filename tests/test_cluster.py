@@ -70,11 +70,12 @@ class DaskProcesses:
         self.log = open(folder / "dask.log", "w")  # noqa: SIM115 - closed in stop()
         self.scheduler = self._start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
                                      "--scheduler-file", str(self.file))
+        # Dask writes the file in place (not by rename): it may exist before it holds the address.
         deadline = time.monotonic() + 60
-        while not self.file.exists():
+        while (address := self._address()) is None:
             assert time.monotonic() < deadline and self.scheduler.poll() is None, "no scheduler"
             time.sleep(0.05)
-        self.address = json.loads(self.file.read_text())["address"]
+        self.address = address
         self.workers = [
             self._start("worker", self.address, "--nthreads", "1", "--no-dashboard", "--name", f"w{i}",
                         "--host", "127.0.0.1")
@@ -84,6 +85,12 @@ class DaskProcesses:
 
         with Client(self.address, timeout=60) as c:
             c.wait_for_workers(2, timeout=60)
+
+    def _address(self) -> str | None:
+        try:
+            return json.loads(self.file.read_text())["address"]
+        except (OSError, ValueError, KeyError):  # not there yet, or half written
+            return None
 
     def _start(self, *args: str) -> subprocess.Popen:
         return subprocess.Popen([sys.executable, "-m", "dask", *args], env=ENV, stdout=self.log,
