@@ -12,7 +12,8 @@ module holds the pure maths (no plotting, no rerun):
   the square root of the top eigenvalues unclipped, so Riemannian (not
   Euclidean) distances with fewer than two positive eigenvalues give NaN
   coordinates, where ours clips them to 0;
-* :func:`smacof_mds` — metric MDS by SMACOF (:func:`sklearn.manifold.smacof`),
+* :func:`smacof_mds` — metric MDS by SMACOF (the Guttman transform of
+  :func:`sklearn.manifold.smacof`, written out here and checked against it),
   started from the classical solution, so it is deterministic; it keeps tight
   clouds open where classical MDS flattens them;
 * :func:`procrustes_align` — the rotation/reflection and translation (no
@@ -211,6 +212,12 @@ def coverage(to_target: np.ndarray, to_mean: np.ndarray) -> float:
     return 0.0 if nearest == 0 else float("inf")
 
 
+def _euclidean(X: np.ndarray) -> np.ndarray:
+    """Pairwise Euclidean distances of the rows of ``X`` (differences first: exact zeros on the diagonal)."""
+    diff = X[:, None, :] - X[None, :, :]
+    return np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+
+
 def smacof_mds(
     D: np.ndarray,
     n_components: int = 2,
@@ -218,12 +225,20 @@ def smacof_mds(
     max_iter: int = 300,
     eps: float = 1e-6,
 ) -> np.ndarray:
-    """Metric MDS by SMACOF (:func:`sklearn.manifold.smacof`), deterministic.
+    """Metric MDS by SMACOF, deterministic.
 
     Minimises the raw stress ``Σ_{i<j} (||x_i - x_j|| - D_ij)²`` by the
-    Guttman transform, started from ``init`` if given, else from
-    :func:`classical_mds` (one run, no random restarts), so the same input
-    gives the same output.
+    Guttman transform ``X ← B(X) X / n``, started from ``init`` if given, else
+    from :func:`classical_mds` (one run, no random restarts), so the same input
+    gives the same output. It is scikit-learn's :func:`sklearn.manifold.smacof`
+    (``metric=True``, unit weights; coincident points at distance 1e-5 as there)
+    written out: the tests check it against scikit-learn to 1e-9. Written out
+    because importing ``sklearn.manifold`` costs ~0.8 s of CPU, which the
+    recorder paid on its first MDS frame of every run (a sixth of a 200-frame
+    traced run's overhead), for ~20 lines of linear algebra; and because
+    scikit-learn's stopping rule changed between releases (1.9 divides the
+    stress decrease by the squared distances, earlier releases by the sum of the
+    points' norms), so the same recording would have depended on its version.
 
     Parameters
     ----------
@@ -233,15 +248,13 @@ def smacof_mds(
     max_iter : int
     eps : float
         Stop when an iteration lowers the stress by less than this fraction
-        of the embedding's squared distances (scikit-learn's criterion).
+        of half the embedding's squared distances (scikit-learn 1.9's criterion).
 
     Returns
     -------
     ndarray, shape (n, n_components)
         Centred coordinates.
     """
-    from sklearn.manifold import smacof
-
     D = _check_distances(D)
     n = len(D)
     if n < 3:
@@ -249,8 +262,20 @@ def smacof_mds(
     X = classical_mds(D, n_components) if init is None else np.array(init, dtype=np.float64)
     if X.shape != (n, n_components):
         raise ValueError(f"init must have shape {(n, n_components)}, got {X.shape}")
-    X, _ = smacof(D, metric=True, n_components=n_components, init=X, n_init=1, max_iter=max_iter, eps=eps,
-                  normalized_stress=False)
+    dist = _euclidean(X)
+    diag = np.arange(n)
+    old = None
+    for _ in range(max_iter):
+        dist[dist == 0] = 1e-5  # coincident points (and the diagonal, where D is 0: ratio 0)
+        ratio = D / dist
+        B = -ratio
+        B[diag, diag] += ratio.sum(axis=1)
+        X = 1.0 / n * (B @ X)
+        dist = _euclidean(X)
+        stress = ((dist - D) ** 2).sum() / 2
+        if old is not None and (old - stress) / ((dist**2).sum() / 2) < eps:
+            break
+        old = stress
     return X - X.mean(axis=0)
 
 

@@ -153,3 +153,20 @@ def test_distance_matrix_of_spd_matrices(rng):
     np.testing.assert_allclose(D, D.T)
     np.testing.assert_allclose(np.diag(D), 0.0)
     assert D[1, 4] == pytest.approx(float(distance_riemann(C[1], C[4])), rel=1e-9)
+
+
+@pytest.mark.parametrize("power", [1.0, 0.7])  # Euclidean distances, and distances no plane can hold
+def test_smacof_is_scikit_learns_smacof(rng, power):
+    """Our Guttman transform against scikit-learn's (metric, unit weights), from the same start."""
+    from sklearn.manifold import smacof
+
+    for _ in range(6):
+        n, k = int(rng.integers(5, 40)), int(rng.integers(3, 10))
+        P = rng.standard_normal((n, k)) * rng.random(k)
+        D = np.sqrt(((P[:, None] - P[None]) ** 2).sum(-1)) ** power
+        X0 = classical_mds(D)
+        for eps, max_iter in ((0.0, 60), (1e-6, 300)):  # a fixed number of steps; the stopping rule
+            ours = smacof_mds(D, init=X0, max_iter=max_iter, eps=eps)
+            theirs, _ = smacof(D, metric=True, n_components=2, init=X0.copy(), n_init=1, max_iter=max_iter,
+                               eps=eps, normalized_stress=False)
+            np.testing.assert_allclose(ours, theirs - theirs.mean(axis=0), rtol=0, atol=1e-9 * np.abs(theirs).max())

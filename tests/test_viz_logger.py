@@ -469,3 +469,31 @@ def test_series_sent_as_columns_keep_their_frames_times_and_order(tmp_path):
     assert scalar_series(t, "a/y") == {f: -f for f in (3, 6, 9)}
     with pytest.raises(RuntimeError, match="at"):
         SeriesBuffer(stream).add("a/x", 1.0)
+
+
+def test_series_flush_once_their_oldest_value_is_seconds_old():
+    """The time bound: a flush when the oldest value held reaches ``seconds``, whatever the frame count."""
+    from covviz.viz.series import SeriesBuffer
+
+    now = [0.0]
+    sent: list[tuple[str, int]] = []
+
+    class Stream:
+        def send_columns(self, path, indexes, columns):
+            sent.append((path, len(indexes[0].as_arrow_array())))
+
+    buf = SeriesBuffer(Stream(), every=100, seconds=2.0, clock=lambda: now[0])
+    for f in range(1, 8):
+        buf.at(f, None)
+        buf.add("a/x", float(f))
+        now[0] += 0.5  # 0.5 s a frame: the value of frame 1 is 2 s old after frame 4
+        buf.tick()
+    assert sent == [("a/x", 4)] and len(buf) == 3  # frames 1-4 sent; 5-7 held (1.5 s old)
+    now[0] += 0.5
+    buf.tick()  # a frame without values: the oldest held (frame 5, added at 2 s) is now 2 s old
+    assert sent == [("a/x", 4), ("a/x", 3)] and len(buf) == 0
+    now[0] += 10.0
+    buf.tick()  # nothing held: nothing sent, however long ago
+    assert len(sent) == 2
+    with pytest.raises(ValueError, match="seconds"):
+        SeriesBuffer(Stream(), seconds=-1.0)

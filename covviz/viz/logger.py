@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import logging
-import threading
 import time
 from collections import deque
 from collections.abc import Sequence as Seq
@@ -99,8 +98,12 @@ class LoggerConfig:
     likelihood_every : int, optional
         The likelihood map every this many frames (default: ``mds_every``; 0: never).
     series_every : int
-        The per-frame scalars (ESS, distances, terms, IoU, timings) are sent as columns every this
-        many frames (:class:`~covviz.viz.series.SeriesBuffer`; 1: every frame, as a live viewer may want).
+        The per-frame scalars (ESS, distances, terms, IoU, timings) are sent as columns once this
+        many frames are held (:class:`~covviz.viz.series.SeriesBuffer`; 1: every frame) ...
+    series_seconds : float or None
+        ... or once the oldest of them is this many seconds old (None: by frames only). Every
+        column chunk costs ~1.3 KB of the file whatever it holds: sent every 10 frames, the series
+        were a quarter of a Car4 recording.
     spread_every : int
         The template-cloud spread (a Karcher mean) every this many frames.
     spread_templates : int
@@ -140,7 +143,8 @@ class LoggerConfig:
     mds_every: int = MDS_EVERY
     likelihood_every: int | None = None
     spread_every: int = 3
-    series_every: int = 10
+    series_every: int = 250
+    series_seconds: float | None = 2.0
     spread_templates: int = 32
     top_k: int = 10
     mds_max_templates: int = 32
@@ -160,6 +164,8 @@ class LoggerConfig:
         for name in ("mds_every", "spread_every", "spread_templates", "top_k", "n_background", "series_every"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.series_seconds is not None and not self.series_seconds >= 0:
+            raise ValueError(f"series_seconds must be >= 0 or None, got {self.series_seconds}")
         if self.likelihood_every is not None and self.likelihood_every < 0:
             raise ValueError(f"likelihood_every must be >= 0, got {self.likelihood_every}")
         if not 1 <= self.jpeg_quality <= 100:
@@ -320,16 +326,12 @@ class RerunLogger(Observer):
         self._fps = None
         self._blueprint_args = None
         self.log_seconds = 0.0  # time spent in on_frame, for the overhead benchmark
-        #: The per-frame scalars, sent as columns every ``series_every`` frames (covviz.viz.series).
-        self.series = SeriesBuffer(stream, self.config.series_every)
+        #: The per-frame scalars, sent as columns (covviz.viz.series) every ``series_seconds``.
+        self.series = SeriesBuffer(stream, self.config.series_every, self.config.series_seconds)
 
     # ------------------------------------------------------------------ #
     def on_start(self, start: RunStart, found: Findings) -> None:
         rec, cfg = self.stream, self.config
-        if cfg.mds_every:
-            # scikit-learn's import (~0.8 s, once per process) happens on a side thread while the first
-            # frames are tracked, not inside the first MDS frame.
-            threading.Thread(target=_preload_mds, name="covviz-preload", daemon=True).start()
         sequence = start.sequence
         names: list[str] = []
         for i, info in enumerate(start.trackers):
@@ -1194,11 +1196,3 @@ def recorder(stream: rr.RecordingStream, config: LoggerConfig | None = None, run
     config = config or LoggerConfig()
     return Pipeline([Diagnoser(config.diagnosis),
                      RerunLogger(stream, config, run_info=run_info, close_on_end=close_on_end)])
-
-
-def _preload_mds() -> None:
-    """Import what the first MDS picture needs (scikit-learn's SMACOF)."""
-    try:
-        import sklearn.manifold  # noqa: F401
-    except Exception as exc:  # noqa: BLE001 - the MDS frame will say what is wrong, in its own place
-        log.debug("could not preload scikit-learn: %s", exc)
