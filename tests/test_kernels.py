@@ -398,6 +398,30 @@ def test_results_do_not_depend_on_chunking(rng, sizes):
         np.concatenate(chunked(lambda s: kernels.quadrant_distances_fast(Q[s], Q[0], spd.logdet(Q[0])), n, sizes)), q)
 
 
+@pytest.mark.parametrize("quadrants", [True, False])
+def test_descriptors_written_into_rows_of_a_batch_equal_the_returned_ones(rng, quadrants):
+    """``out=``: each chunk writes its rows of the batch's arrays (ObservationModel.observe's use)."""
+    n = 97
+    gray = rng.random((100, 120), dtype=np.float32)
+    poses = np.column_stack([rng.uniform(0, 120, n), rng.uniform(0, 100, n), rng.uniform(0.5, 1.5, n),
+                             rng.uniform(-0.3, 0.3, n)])
+    C, Q = kernels.warp_descriptors_fast(gray, poses, (30.0, 24.0), 32, 1.0, EPS, True, quadrants)
+    Cb, Qb = np.full((n, 9, 9), np.nan), (np.full((n, 4, 9, 9), np.nan) if quadrants else None)
+    for s in (slice(0, 40), slice(40, 41), slice(41, n)):
+        got = kernels.warp_descriptors_fast(gray, poses[s], (30.0, 24.0), 32, 1.0, EPS, True, quadrants,
+                                            out=(Cb[s], None if Qb is None else Qb[s]))
+        assert np.shares_memory(got[0], Cb)
+    np.testing.assert_array_equal(Cb, C)
+    if quadrants:
+        np.testing.assert_array_equal(Qb, Q)
+    with pytest.raises(ValueError, match="out C"):
+        kernels.warp_descriptors_fast(gray, poses, (30.0, 24.0), 32, 1.0, EPS, True, quadrants,
+                                      out=(np.empty((n, 9, 9), np.float32), Qb))
+    with pytest.raises(ValueError, match="out C"):
+        kernels.warp_descriptors_fast(gray, poses, (30.0, 24.0), 32, 1.0, EPS, True, quadrants,
+                                      out=(np.empty((n, 9, 9))[:, ::-1], Qb))
+
+
 def test_results_are_the_same_on_threads_and_repeats(rng):
     n = 300
     gray = rng.random((100, 120), dtype=np.float32)

@@ -626,6 +626,14 @@ def descriptors_fast(patches, eps: float, gain_normalize: bool = True, quadrants
     return C, (Q if quadrants else None)
 
 
+def _check_out(a, shape: tuple, name: str) -> None:
+    """``a`` can take a kernel's output of ``shape``: float64, C-contiguous, writeable."""
+    if not (isinstance(a, np.ndarray) and a.shape == shape and a.dtype == np.float64 and a.flags.c_contiguous
+            and a.flags.writeable):
+        got = (getattr(a, "shape", None), getattr(a, "dtype", None))
+        raise ValueError(f"out {name} must be a writeable C-contiguous float64 array of shape {shape}; got {got}")
+
+
 def _affine(poses, base_wh, step) -> np.ndarray:
     """Per-pose coefficients of the sampling grid, ``(n, 6)``: those of :func:`covviz.model.features.sample_grid`."""
     p = np.asarray(poses, dtype=np.float64)
@@ -643,7 +651,7 @@ def _affine(poses, base_wh, step) -> np.ndarray:
 
 def warp_descriptors_fast(
     gray, poses, base_wh, size: int = 32, step=1.0, eps: float = 1e-3, gain_normalize: bool = True,
-    quadrants: bool = True, grad_normalize: float = 0.0, grad_floor: float = 0.0,
+    quadrants: bool = True, grad_normalize: float = 0.0, grad_floor: float = 0.0, out=None,
 ):
     """Descriptors at ``poses`` straight from the frame: warp, features and moments fused.
 
@@ -663,6 +671,9 @@ def warp_descriptors_fast(
         Downsampling factor of ``gray`` (see :func:`covviz.model.features.sample_grid`).
     eps, gain_normalize, quadrants, grad_normalize, grad_floor
         As in :func:`descriptors_fast`.
+    out : (C, Q), optional
+        Arrays to write the descriptors into (C-contiguous float64 of the shapes returned; ``Q``
+        None without ``quadrants``), e.g. rows of a larger batch's arrays: no copy after.
 
     Returns
     -------
@@ -678,7 +689,15 @@ def warp_descriptors_fast(
     if not np.isfinite(A).all():
         raise ValueError("poses, base_wh or step contain NaN or inf")
     q = (np.arange(-1, size + 1, dtype=np.float64) + 0.5) / size - 0.5  # features._unit_grid's coordinates
-    C, Q = _outputs(len(A), quadrants)
+    if out is None:
+        C, Q = _outputs(len(A), quadrants)
+    else:
+        C, Q = out
+        _check_out(C, (len(A), 9, 9), "C")
+        if quadrants:
+            _check_out(Q, (len(A), 4, 9, 9), "Q")
+        else:
+            Q = np.empty((1, 4, 9, 9))  # the kernel's unused scratch argument, as _outputs gives it
     _descriptors_from_frame(g32, A, q, _coordinates(size), float(eps), bool(gain_normalize), bool(quadrants), C, Q,
                             float(grad_normalize), float(grad_floor))
     return C, (Q if quadrants else None)
