@@ -20,6 +20,8 @@ with independent entries ``W_ij = W_ji ~ N(0, σ_ij²)`` (the paper's eq. 11).
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -159,12 +161,22 @@ def symmetric_noise(n: int, sigma, rng) -> np.ndarray:
     rng = np.random.default_rng(rng)
     sigma = np.asarray(sigma, dtype=np.float64)
     d = sigma.shape[0]
-    iu = np.triu_indices(d)
+    iu, full = _upper(d)
     Z = rng.standard_normal((n, len(iu[0]))) * sigma[iu]
-    W = np.empty((n, d * d))
-    W[:, iu[0] * d + iu[1]] = Z  # upper triangle and diagonal
-    W[:, iu[1] * d + iu[0]] = Z  # its mirror (the diagonal again, same values)
-    return W.reshape(n, d, d)
+    return Z[:, full].reshape(n, d, d)  # each entry from its upper-triangle draw: one gather
+
+
+@functools.lru_cache(maxsize=8)
+def _upper(d: int) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """The upper triangle's indices of a ``d x d`` matrix, and for each of its ``d²`` entries (row-major) the
+    index of its upper-triangle twin in that list."""
+    iu = np.triu_indices(d)
+    k = np.empty((d, d), dtype=np.intp)
+    k[iu] = np.arange(len(iu[0]))
+    k[iu[1], iu[0]] = k[iu]
+    for a in (*iu, k):
+        a.setflags(write=False)
+    return iu, k.ravel()
 
 
 def template_walk(L: np.ndarray, sigma, rng, anchor: np.ndarray | None = None, pull: float = 0.0) -> np.ndarray:
