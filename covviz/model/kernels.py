@@ -196,12 +196,18 @@ def _warp_patch(flat, H, W, a, q, B, idx, dx, dy, al, be):
     gives cv2.remap), rounded to float32 as there; then OpenCV 5's float
     bilinear interpolation: ``f0 = p00 + α(p01 − p00)``, ``f1 = p10 + α(p11 −
     p10)``, ``f0 + β(f1 − f0)``, each a fused multiply-add. ``idx``, ``dx``,
-    ``dy`` (g,) int64 and ``al``, ``be`` (g,) float32 are scratch. A row is
+    ``dy`` (g,) int32 and ``al``, ``be`` (g,) float32 are scratch. A row is
     two loops: the coordinates (vectorised), then the four taps and the
     interpolation (scalar loads: LLVM will not gather from an array it cannot
-    prove distinct from the one the loop stores to).
+    prove distinct from the one the loop stores to). The tap indices are int32:
+    AVX2 converts 8 float32 to int32 in one instruction but has no packed
+    float-to-int64 conversion (AVX-512DQ's), so int64 indices made the
+    coordinate loop scalar there (the warp took 1.85x the host's time compiled
+    for haswell; 1.02x now: ``benchmarks/kernel_parts.py``). The frame must
+    then have fewer than 2**31 pixels (:func:`warp_descriptors_fast` checks).
     """
     g = q.shape[0]
+    W32 = np.int32(W)
     lo = np.float32(-2.0)
     xmax = np.float32(W + 1)
     ymax = np.float32(H + 1)
@@ -227,7 +233,7 @@ def _warp_patch(flat, H, W, a, q, B, idx, dx, dy, al, be):
                 fy = np.floor(y)
                 al[u] = x - fx
                 be[u] = y - fy
-                idx[u] = np.int64(fy) * W + np.int64(fx)
+                idx[u] = np.int32(fy) * W32 + np.int32(fx)
             for u in range(g):
                 k = idx[u]
                 p00 = flat[k]
@@ -559,9 +565,9 @@ def _descriptors_from_frame(gray, A, q, u, eps, gain_normalize, quadrants, C, Q,
     mq = np.empty((4, 9))
     Mq = np.empty((4, 9, 9))
     r = np.empty(9)
-    idx = np.empty(g, dtype=np.int64)
-    dx = np.empty(g, dtype=np.int64)
-    dy = np.empty(g, dtype=np.int64)
+    idx = np.empty(g, dtype=np.int32)
+    dx = np.empty(g, dtype=np.int32)
+    dy = np.empty(g, dtype=np.int32)
     al = np.empty(g, dtype=np.float32)
     be = np.empty(g, dtype=np.float32)
     for i in range(n):
@@ -683,6 +689,8 @@ def warp_descriptors_fast(
     g32 = np.ascontiguousarray(gray, dtype=np.float32)
     if g32.ndim != 2 or min(g32.shape) < 2:
         raise ValueError(f"gray must have shape (H, W) with H, W >= 2; got {g32.shape}")
+    if g32.size >= 2**31:  # the warp's tap indices are int32 (see _warp_patch)
+        raise ValueError(f"a frame of {g32.shape[1]}x{g32.shape[0]} has 2**31 pixels or more: too large to observe")
     if size < 2 or (quadrants and size % 2):
         raise ValueError(f"size must be at least 2 (and even with quadrants), got {size}")
     A = _affine(poses, base_wh, step)
