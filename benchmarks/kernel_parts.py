@@ -27,7 +27,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from speed import _python, cpu_env, machine  # noqa: E402
+from speed import _python, cpu_env, machine
 
 CHILD = r"""
 import json, time, numpy as np, numba

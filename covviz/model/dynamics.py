@@ -21,7 +21,6 @@ with independent entries ``W_ij = W_ji ~ N(0, σ_ij²)`` (the paper's eq. 11).
 from __future__ import annotations
 
 import functools
-
 from dataclasses import dataclass
 
 import numpy as np
