@@ -497,3 +497,17 @@ def test_series_flush_once_their_oldest_value_is_seconds_old():
     assert len(sent) == 2
     with pytest.raises(ValueError, match="seconds"):
         SeriesBuffer(Stream(), seconds=-1.0)
+
+
+@pytest.mark.parametrize("cmap", ["VIRIDIS", "INFERNO"])
+def test_colormap_table_gives_opencvs_colours(cmap):
+    """The recorder's heatmaps and likelihood map: cv2.applyColorMap's colours, from a table built once."""
+    import cv2
+
+    from covviz.viz.palette import colormap_rgb
+
+    code = getattr(cv2, f"COLORMAP_{cmap}")
+    u = np.random.default_rng(0).integers(0, 256, (17, 23)).astype(np.uint8)
+    np.testing.assert_array_equal(colormap_rgb(u, code), cv2.applyColorMap(u, code)[..., ::-1])
+    ramp = np.arange(256, dtype=np.uint8)[:, None]
+    np.testing.assert_array_equal(colormap_rgb(ramp, code), cv2.applyColorMap(ramp, code)[..., ::-1])

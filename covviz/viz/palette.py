@@ -7,6 +7,8 @@ likelihood map's colours.
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -107,6 +109,22 @@ def likelihood_rgba(log_lik: np.ndarray, range_nats: float = LIKELIHOOD_RANGE_NA
                     floor_alpha: int = 0) -> np.ndarray:
     """Relative log-likelihood (<= 0) -> RGBA: inferno colours, from ``floor_alpha`` far below the best."""
     v = np.nan_to_num(np.clip(1.0 + np.asarray(log_lik) / range_nats, 0.0, 1.0))
-    rgb = cv2.applyColorMap((v * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)[..., ::-1]
+    rgb = colormap_rgb((v * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
     a = (floor_alpha + (200 - min(floor_alpha, 200)) * np.sqrt(v)).astype(np.uint8)
     return np.concatenate([rgb, a[..., None]], axis=2)
+
+
+def colormap_rgb(u8: np.ndarray, cmap: int) -> np.ndarray:
+    """OpenCV's colour map ``cmap`` (``cv2.COLORMAP_*``) of 8-bit values, RGB: ``cv2.applyColorMap`` as a table.
+
+    The same colours as ``cv2.applyColorMap(u8, cmap)[..., ::-1]``; OpenCV builds its 256-entry table
+    on every call (~0.3 ms, whatever the image: the recorder's 9x9 heatmaps paid it twice a frame).
+    """
+    return _colormap_table(int(cmap))[np.asarray(u8, dtype=np.uint8)]
+
+
+@functools.lru_cache(maxsize=8)
+def _colormap_table(cmap: int) -> np.ndarray:
+    table = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], cmap)[:, 0, ::-1].copy()
+    table.setflags(write=False)
+    return table

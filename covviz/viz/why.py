@@ -19,6 +19,7 @@ from covviz.diagnosis.drift import FrameEvidence
 from covviz.model.features import FEATURE_NAMES
 from covviz.viz import paths as P
 from covviz.viz.diagnostics import LikelihoodSlices
+from covviz.viz.palette import colormap_rgb
 
 __all__ = [
     "DIFF_RANGE",
@@ -223,7 +224,7 @@ def log_zoom(rec: rr.RecordingStream, p: P.TrackerPaths, image: np.ndarray) -> N
 
 def _viridis(v: np.ndarray) -> np.ndarray:
     u = np.clip(np.nan_to_num(v), 0.0, 1.0)
-    return cv2.applyColorMap((u * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)[..., ::-1]
+    return colormap_rgb((u * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
 
 
 def _diverging(v: np.ndarray) -> np.ndarray:
