@@ -144,11 +144,12 @@ def _recording_observers(
 ) -> tuple[list, Path | None]:
     """The Rerun logger for ``track`` (checked and connected before tracking starts), and its file.
 
-    ``watch``: the label-free drift detector, on a thread of its own before the diagnosis' (whose
-    recorder closes the stream, so it ends last), with the logger of its probability when recorded.
+    ``watch``: the label-free drift detector. Recorded, it runs on a thread of its own with the logger
+    of its probability, before the diagnosis' thread (whose recorder closes the stream, so it ends
+    last); without a recording, first on the diagnosis' thread.
 
-    ``stages``: the observers before it (the drift diagnosis, the replays of its losses), run with
-    it on one background thread; without a recording, they run there alone.
+    ``stages``: the observers before the recorder (the drift diagnosis, the replays of its losses),
+    run with it on one background thread; without a recording, they run there with the detector.
     ``locks`` (an ExitStack) holds the lock of every output of the run
     (:mod:`covviz.locks`), taken after the checks and before the recording file
     is opened, so a second run on the same outputs is refused before it writes.
@@ -166,8 +167,9 @@ def _recording_observers(
     if locks is not None:
         locks.enter_context(_hold_outputs(args, seq, save, created))
     if save is None and not live:
-        drift = [] if watch is None else [BackgroundObserver(watch)]
-        return [*drift, BackgroundObserver(Pipeline(stages))], None  # the diagnosis alone, on its own thread
+        # The detector, then the diagnosis, on one thread of their own: a second Python thread would
+        # only contend with the tracker's kernel threads for the two cores (and the GIL).
+        return [BackgroundObserver(Pipeline([*([] if watch is None else [watch]), *stages]))], None
     from covviz.viz.logger import LoggerConfig, RerunLogger
     from covviz.viz.sinks import BATCH_SECONDS, BATCH_SECONDS_LIVE, attach_sinks, new_recording
 
