@@ -197,10 +197,11 @@ def track(
         stages.append(replays)
     from covviz.diagnosis.detector import drift_watch
 
-    watch = drift_watch(detector)  # the label-free drift probability and alarms, on a thread of its own
+    watch = drift_watch(detector)  # the label-free drift probability and alarms
     save = None if save is None else Path(save)
+    # The detector, the diagnosis (and the recorder) on one background thread, as covviz track runs them.
     if save is None:
-        observers = [BackgroundObserver(watch), BackgroundObserver(Pipeline(stages))]
+        observers = [BackgroundObserver(Pipeline([watch, *stages]))]
     else:
         if save.suffix != ".rrd":
             raise ValueError(f"save={str(save)!r}: a recording file ends in .rrd")
@@ -216,8 +217,8 @@ def track(
         cfg = LoggerConfig(mds_every=mds_every, seed=seed, diagnosis=diagnoser.config)
         from covviz.viz.drift import DriftRecorder
 
-        observers = [BackgroundObserver(Pipeline([watch, DriftRecorder(stream)])),
-                     BackgroundObserver(Pipeline([*stages, RerunLogger(stream, cfg, run_info=info)]))]
+        observers = [BackgroundObserver(Pipeline([watch, DriftRecorder(stream), *stages,
+                                                  RerunLogger(stream, cfg, run_info=info)]))]
     results = run_trackers(built, seq, seed, observers, max_frames=max_frames, progress=progress,
                            checkpoints=None if replays is None else replays.config.checkpoints)
     out = []

@@ -226,9 +226,9 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
     watch = drift_watch(None if job.detector is None else DriftModel.from_dict(json.loads(job.detector)))
     t0 = time.perf_counter()
     with limit_threads(threads), contextlib.closing(tracker) if hasattr(tracker, "close") else contextlib.nullcontext():
-        # The label-free detector and the drift diagnosis each on a thread of their own, overlapping the
+        # The label-free detector and the drift diagnosis on one thread of their own, overlapping the
         # tracker (neither changes a box); the replays of the diagnosed losses after the last frame.
-        res = run(tracker, seq, [failures, BackgroundObserver(watch), BackgroundObserver(Pipeline(stages))],
+        res = run(tracker, seq, [failures, BackgroundObserver(Pipeline([watch, *stages]))],
                   max_frames=job.max_frames, seed=job.seed,
                   checkpoints=None if replays is None else replays.config.checkpoints)
     wall = time.perf_counter() - t0
