@@ -378,12 +378,18 @@ def chunked(fn, n, sizes):
     return parts
 
 
-@pytest.mark.parametrize("sizes", [[1], [7, 64, 3], [150], [65, 200]])
-def test_results_do_not_depend_on_chunking(rng, sizes):
-    n = 203
+def frame_and_poses(rng, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A random 120x100 grey frame and ``n`` poses over it (some partly outside)."""
     gray = rng.random((100, 120), dtype=np.float32)
     poses = np.column_stack([rng.uniform(0, 120, n), rng.uniform(0, 100, n), rng.uniform(0.5, 1.5, n),
                              rng.uniform(-0.3, 0.3, n)])
+    return gray, poses
+
+
+@pytest.mark.parametrize("sizes", [[1], [7, 64, 3], [150], [65, 200]])
+def test_results_do_not_depend_on_chunking(rng, sizes):
+    n = 203
+    gray, poses = frame_and_poses(rng, n)
     C, Q = kernels.warp_descriptors_fast(gray, poses, (30.0, 24.0), 32, 1.0, EPS, True, True)
     L = walk(spd.logm(C[0]), n, 0.05, rng)
     d = kernels.template_distances_fast(L, C)
@@ -402,9 +408,7 @@ def test_results_do_not_depend_on_chunking(rng, sizes):
 def test_descriptors_written_into_rows_of_a_batch_equal_the_returned_ones(rng, quadrants):
     """``out=``: each chunk writes its rows of the batch's arrays (ObservationModel.observe's use)."""
     n = 97
-    gray = rng.random((100, 120), dtype=np.float32)
-    poses = np.column_stack([rng.uniform(0, 120, n), rng.uniform(0, 100, n), rng.uniform(0.5, 1.5, n),
-                             rng.uniform(-0.3, 0.3, n)])
+    gray, poses = frame_and_poses(rng, n)
     C, Q = kernels.warp_descriptors_fast(gray, poses, (30.0, 24.0), 32, 1.0, EPS, True, quadrants)
     Cb, Qb = np.full((n, 9, 9), np.nan), (np.full((n, 4, 9, 9), np.nan) if quadrants else None)
     for s in (slice(0, 40), slice(40, 41), slice(41, n)):
@@ -424,9 +428,7 @@ def test_descriptors_written_into_rows_of_a_batch_equal_the_returned_ones(rng, q
 
 def test_results_are_the_same_on_threads_and_repeats(rng):
     n = 300
-    gray = rng.random((100, 120), dtype=np.float32)
-    poses = np.column_stack([rng.uniform(0, 120, n), rng.uniform(0, 100, n), rng.uniform(0.5, 1.5, n),
-                             rng.uniform(-0.3, 0.3, n)])
+    gray, poses = frame_and_poses(rng, n)
     L = walk(np.zeros((9, 9)) - 3 * np.eye(9), n, 0.3, rng)
 
     def work(s):
