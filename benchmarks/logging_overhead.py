@@ -1,10 +1,12 @@
 """What the Rerun recorder costs: tracking time with and without it, recording size, memory.
 
 Runs the manifold tracker on the synthetic default (320×240) at 600 particles,
-alternately as ``covviz track --no-save`` runs it ("untraced": the drift
-diagnosis on a background thread; ``--bare``: no observer at all) and with
-:class:`RerunLogger` writing an ``.rrd`` ("traced", which drives the same
-diagnosis, MDS and likelihood map every 10 frames), with
+alternately as ``covviz track --no-save`` runs it ("untraced": the label-free
+drift detector and the drift diagnosis on a background thread; ``--bare``: no
+observer at all) and as ``covviz track`` records it ("traced": the same two,
+the logger of the detector's probability and :class:`RerunLogger` writing an
+``.rrd``, with the MDS and likelihood map every 10 frames, on one background
+thread), with
 the same seed, so both runs do the same tracking work (the script reports how
 far the boxes of the two runs differ: the logger never touches the tracker,
 but float32 results depend on heap alignment in their last bits, which any
@@ -17,10 +19,11 @@ Prints, and writes as JSON with ``--json``:
   of the process, including Rerun's encoder and writer, and BLAS worker
   threads) of the two kinds of run, and the traced/untraced ratios (target ≤
   1.3). On a shared machine these swing with other load, so the script also
-  accounts CPU inside each run: the tracker's ``init``/``update`` and the
-  logger's ``on_frame`` (main-thread CPU time) and the extra CPU of the other
-  threads (Rerun's encoder and writer), and reports ``1 + (logger + extra
-  threads) / untraced CPU``;
+  accounts CPU inside each run: the tracker's ``init``/``update``, the two
+  recorders' ``on_frame`` (their thread's CPU time; the detector and the
+  diagnosis, which run untraced too, are not counted) and the extra CPU of the
+  other threads (Rerun's encoder and writer), and reports ``1 + (recorders +
+  extra threads) / untraced CPU``;
 * recording size per 1000 frames (target ≤ 30 MB);
 * RSS over the long run and its slope in MB per 1000 frames over the second
   half (flat: no growth per frame beyond the recording stream's buffer).
@@ -47,9 +50,11 @@ import numpy as np
 import psutil
 
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
+from covviz.diagnosis.detector import drift_watch
 from covviz.diagnosis.drift import Diagnoser
 from covviz.runner import BackgroundObserver, Observer, Pipeline, run
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
+from covviz.viz.drift import DriftRecorder
 from covviz.viz.logger import LoggerConfig, RerunLogger
 from covviz.viz.sinks import attach_sinks, new_recording
 
@@ -116,17 +121,20 @@ def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds
             background: bool = True, bare: bool = False):
     tracker = TimedTracker(ManifoldTracker(ManifoldConfig(n_particles=particles), rng=seed))
     observers = list(extra)
-    if rrd is None and not bare:  # as `covviz track --no-save`: the diagnosis on its own thread
-        observers.append(BackgroundObserver(Diagnoser()))
+    if rrd is None and not bare:  # as `covviz track --no-save`: the detector and the diagnosis on their thread
+        observers.append(BackgroundObserver(Pipeline([drift_watch(None), Diagnoser()])))
     logger = None
     if rrd is not None:
         stream = new_recording()
         attach_sinks(stream, save=rrd)
         rerun_logger = RerunLogger(stream, LoggerConfig(mds_every=mds_every, seed=seed))
-        # As `covviz track` does: the diagnosis, then the recorder that shows what it found.
-        logger = TimedObserver(Pipeline([Diagnoser(), rerun_logger]))
-        # As `covviz track` does: the recorder logs on its own thread (BackgroundObserver).
-        observers.append(BackgroundObserver(logger) if background else logger)
+        # As `covviz track` does: the detector and the logger of its probability, the diagnosis, then
+        # the recorder that shows what they found, on one thread of their own (BackgroundObserver).
+        # Only the recorders are timed (the detector and the diagnosis run untraced too).
+        logger = TimedObserver(rerun_logger)
+        drift = TimedObserver(DriftRecorder(stream))
+        pipe = Pipeline([drift_watch(None), drift, Diagnoser(), logger])
+        observers.append(BackgroundObserver(pipe) if background else pipe)
     w0, c0, m0 = time.perf_counter(), time.process_time(), time.thread_time()
     res = run(tracker, seq, observers, max_frames=n_frames, seed=seed)
     wall, cpu, main = time.perf_counter() - w0, time.process_time() - c0, time.thread_time() - m0
@@ -135,7 +143,7 @@ def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds
         "wall_ms": wall * per,
         "cpu_ms": cpu * per,
         "tracker_cpu_ms": tracker.cpu * per,
-        "logger_cpu_ms": (logger.cpu * per) if logger else 0.0,
+        "logger_cpu_ms": ((logger.cpu + drift.cpu) * per) if logger else 0.0,
         "logger_wall_ms": (rerun_logger.log_seconds * per) if logger else 0.0,
         "other_threads_cpu_ms": (cpu - main) * per,
         "mb_per_1000": (rrd.stat().st_size / n_frames * 1000 / 1e6) if rrd is not None else None,
