@@ -193,7 +193,7 @@ def _recording_observers(
     if watch is not None:
         from covviz.viz.drift import DriftRecorder
 
-        drift = [watch, DriftRecorder(stream)]
+        drift = [watch, DriftRecorder(stream, series_seconds=config.series_seconds)]
     return [BackgroundObserver(Pipeline([*drift, *stages, RerunLogger(stream, config, run_info=info)]))], save
 
 def _hold_outputs(args, seq, save: Path | None, created: list[Path] | None):

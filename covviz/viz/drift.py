@@ -2,8 +2,9 @@
 its alarms in Events, with the signals that drove them.
 
 :class:`DriftRecorder` is an observer that runs a :class:`~covviz.diagnosis.detector.DriftWatch` and logs
-what it found on the recorder's stream; it is separate from :class:`covviz.viz.logger.RerunLogger` so that
-the detector's cost stays on its own thread. Entity paths:
+what it found on the recorder's stream; it is separate from :class:`covviz.viz.logger.RerunLogger` (it
+runs before it, on the same background thread in ``covviz track``). The two series go out as columns
+(:class:`~covviz.viz.series.SeriesBuffer`, every ``series_seconds``), the alarms as they come. Entity paths:
 
     trackers/<name>/drift/probability   Scalars: the drift probability, every frame
     trackers/<name>/drift/threshold     Scalars: the model's alarm threshold (every THRESHOLD_EVERY frames
@@ -19,9 +20,11 @@ import json
 import rerun as rr
 
 from covviz.diagnosis.detector import describe_alarm
+from covviz.records import frame_number
 from covviz.runner import Observer
 from covviz.viz import paths as P
 from covviz.viz.description import viewer_safe
+from covviz.viz.series import SeriesBuffer
 
 __all__ = ["DriftRecorder", "probability_path", "threshold_path"]
 
@@ -40,8 +43,9 @@ def threshold_path(tracker: str) -> str:
 class DriftRecorder(Observer):
     """Observer after a :class:`~covviz.diagnosis.detector.DriftWatch`: its probability and alarms logged to ``stream``."""
 
-    def __init__(self, stream: rr.RecordingStream) -> None:
+    def __init__(self, stream: rr.RecordingStream, series_seconds: float | None = 2.0) -> None:
         self.stream = stream
+        self.series = SeriesBuffer(stream, every=250, seconds=series_seconds)
         self._paths: list[P.TrackerPaths] = []
         self._thresholds: list[float | None] = []
         self._last = None
@@ -57,14 +61,18 @@ class DriftRecorder(Observer):
 
     def on_frame(self, frame, records, found) -> None:
         rec = self.stream
-        P.set_frame_time(rec, frame)  # this thread's own time
         self._last = frame
+        self.series.at(frame_number(frame.index), frame.time)
+        timed = False
         for paths, th, (p, new) in zip(self._paths, self._thresholds, found.drift_news):
             if p is None:
                 continue
-            rec.log(probability_path(paths.name), rr.Scalars(p))
+            self.series.add(probability_path(paths.name), p)
             if th is not None and frame.index % THRESHOLD_EVERY == 0:
-                rec.log(threshold_path(paths.name), rr.Scalars(th))
+                self.series.add(threshold_path(paths.name), th)
+            if new and not timed:
+                P.set_frame_time(rec, frame)  # this thread's own time, for the alarms' rows
+                timed = True
             for a in new:
                 text = f"drift alarm: {describe_alarm(a)} (label-free; drivers {', '.join(a['drivers']) or '-'})"
                 rec.log(paths.events, rr.TextLog(viewer_safe(f"[{paths.name}] {text}"),
@@ -73,11 +81,13 @@ class DriftRecorder(Observer):
                     tracker=[paths.name], kind=["alarm"], frame_number=[a["frame"]], level=["WARN"],
                     text=[viewer_safe(text)], cause=["drift"], details=[json.dumps(a, default=float)]))
 
+        self.series.tick()
+
     def on_end(self, results, found) -> None:
         frame = self._last
-        if frame is None or frame.index % THRESHOLD_EVERY == 0:
-            return
-        P.set_frame_time(self.stream, frame)
-        for paths, th in zip(self._paths, self._thresholds):
-            if th is not None:
-                self.stream.log(threshold_path(paths.name), rr.Scalars(th))
+        if frame is not None and frame.index % THRESHOLD_EVERY != 0:
+            self.series.at(frame_number(frame.index), frame.time)
+            for paths, th in zip(self._paths, self._thresholds):
+                if th is not None:
+                    self.series.add(threshold_path(paths.name), th)
+        self.series.flush()

@@ -642,7 +642,7 @@ class RerunLogger(Observer):
                 self.series.add(p.loss_evidence, float(record.diffusion.evidence))
                 self.series.add(p.redetected, record.diffusion.redetected / n)
             if record.resampled:
-                rec.log(p.resampled, rr.Scalars(ess / n))
+                self.series.add(p.resampled, ess / n)
                 idx = record.resample_indices
                 if idx is not None and len(idx):
                     self.series.add(p.survivors, len(np.unique(idx)) / len(idx))
