@@ -41,7 +41,11 @@ def threshold_path(tracker: str) -> str:
 
 
 class DriftRecorder(Observer):
-    """Observer after a :class:`~covviz.diagnosis.detector.DriftWatch`: its probability and alarms logged to ``stream``."""
+    """Observer after a :class:`~covviz.diagnosis.detector.DriftWatch`: its probability and alarms logged to ``stream``.
+
+    ``series_seconds``: the probability and threshold series are sent every this many seconds
+    (:class:`~covviz.viz.series.SeriesBuffer`; the rest at ``on_end``); alarms at once.
+    """
 
     def __init__(self, stream: rr.RecordingStream, series_seconds: float | None = 2.0) -> None:
         self.stream = stream
