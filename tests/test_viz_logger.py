@@ -511,3 +511,20 @@ def test_colormap_table_gives_opencvs_colours(cmap):
     np.testing.assert_array_equal(colormap_rgb(u, code), cv2.applyColorMap(u, code)[..., ::-1])
     ramp = np.arange(256, dtype=np.uint8)[:, None]
     np.testing.assert_array_equal(colormap_rgb(ramp, code), cv2.applyColorMap(ramp, code)[..., ::-1])
+
+
+def test_frame_jpeg_is_opencvs_encoding_of_the_bgr_frame():
+    """The recorder's frames: RGB in, the same JPEG bytes as OpenCV's of the BGR image (grey frames too)."""
+    import cv2
+
+    from covviz.viz.checks import jpeg_bytes
+
+    rgb = np.random.default_rng(1).integers(0, 256, (48, 64, 3)).astype(np.uint8)
+    want = cv2.imencode(".jpg", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 60])[1].tobytes()
+    assert jpeg_bytes(rgb, 60) == want
+    assert jpeg_bytes(rgb[::2, ::2], 60) == cv2.imencode(  # a strided view
+        ".jpg", np.ascontiguousarray(rgb[::2, ::2, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 60])[1].tobytes()
+    grey = rgb[..., 0]
+    assert jpeg_bytes(grey, 60) == cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_QUALITY, 60])[1].tobytes()
+    with pytest.raises(ValueError, match="shape"):
+        jpeg_bytes(np.zeros((4, 4, 2), np.uint8), 60)
