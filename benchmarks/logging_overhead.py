@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 
+from covviz.cli.track import RECORDING_ONE_THREAD_CORES
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.diagnosis.detector import drift_watch
 from covviz.diagnosis.drift import Diagnoser
@@ -119,7 +120,10 @@ class TimedObserver(Observer):
 
 def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds_every: int, extra=(),
             background: bool = True, bare: bool = False):
-    tracker = TimedTracker(ManifoldTracker(ManifoldConfig(n_particles=particles), rng=seed))
+    inner = ManifoldTracker(ManifoldConfig(n_particles=particles), rng=seed)
+    if rrd is not None and (os.cpu_count() or 1) <= RECORDING_ONE_THREAD_CORES:
+        inner.set_threads(1)  # as `covviz track` records on two cores (its boxes are the same)
+    tracker = TimedTracker(inner)
     observers = list(extra)
     if rrd is None and not bare:  # as `covviz track --no-save`: the detector and the diagnosis on their thread
         observers.append(BackgroundObserver(Pipeline([drift_watch(None), Diagnoser()])))
@@ -148,6 +152,7 @@ def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds
         "other_threads_cpu_ms": (cpu - main) * per,
         "mb_per_1000": (rrd.stat().st_size / n_frames * 1000 / 1e6) if rrd is not None else None,
         "boxes": res.boxes,
+        "observe_threads": inner.config.threads,
     }
 
 
@@ -194,7 +199,8 @@ def main(argv=None) -> int:
         f"{what}, {args.particles} particles, "
         f"MDS + likelihood map every {args.mds_every} frames, {args.frames} frames per run, "
         f"BLAS threads: {args.blas_threads or 'default'}; load average {os.getloadavg()[0]:.1f} "
-        f"on {os.cpu_count()} cores",
+        f"on {os.cpu_count()} cores; observe threads: untraced 2, traced "
+        f"{1 if (os.cpu_count() or 1) <= RECORDING_ONE_THREAD_CORES else 2} (as covviz track --no-save / records)",
         flush=True,
     )
 
@@ -250,13 +256,20 @@ def main(argv=None) -> int:
         "untraced_cpu_ms": med(untraced, "cpu_ms"),
         "traced_cpu_ms": med(traced, "cpu_ms"),
         "tracker_cpu_ms": med(untraced + traced, "tracker_cpu_ms"),
+        "traced_observe_threads": traced[0]["observe_threads"],
+        "untraced_observe_threads": untraced[0]["observe_threads"],
         "logger_cpu_ms": med(traced, "logger_cpu_ms"),
         "logger_wall_ms": med(traced, "logger_wall_ms"),
         # Threads other than the tracking thread: with the background logger its
         # thread is among them, so its CPU is taken out here (it is counted as "logger").
+        # On two cores the traced tracker observes on its own thread (as covviz track
+        # records), the untraced one on two observe threads: the work those did is in the
+        # untraced run's other threads and in the traced run's tracker CPU, so the
+        # difference of the trackers' CPU is added back.
         "rerun_threads_cpu_ms": max(
             0.0,
             med(traced, "other_threads_cpu_ms") - med(untraced, "other_threads_cpu_ms")
+            + med(traced, "tracker_cpu_ms") - med(untraced, "tracker_cpu_ms")
             - (0.0 if args.foreground else med(traced, "logger_cpu_ms")),
         ),
         "mb_per_1000_frames": med(traced, "mb_per_1000"),

@@ -315,3 +315,27 @@ def test_value_error_exit_code_through_the_console(tmp_path):
     )
     assert p.returncode == 2, p.stderr
     assert p.stderr.strip().count("\n") == 0 and "n_particles must be an integer in [2" in p.stderr
+
+
+@pytest.mark.parametrize(("cores", "save", "config", "want"), [
+    (2, True, None, 1),  # a recording on two cores: one observation thread
+    (2, False, None, 2),  # no recording: the default two
+    (2, True, {"threads": 2}, 2),  # --config says so: kept
+    (8, True, None, 2),  # more cores: the default
+])
+def test_a_recorded_run_on_two_cores_observes_with_one_thread(tmp_path, monkeypatch, cores, save, config, want):
+    import os
+
+    from covviz.cli.track import _threads_for_recording
+    from covviz.trackers.manifold import ManifoldTracker
+
+    monkeypatch.setattr(os, "cpu_count", lambda: cores)
+    path = None
+    if config is not None:
+        path = tmp_path / "c.json"
+        path.write_text(json.dumps(config))
+    args = argparse.Namespace(spawn=False, connect=None, serve_web=False, no_save=not save, config=path,
+                              trackers=["manifold", "identity"])
+    trackers = [ManifoldTracker(), object()]  # a tracker without threads is left alone
+    _threads_for_recording(args, trackers)
+    assert trackers[0].config.threads == want

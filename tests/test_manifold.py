@@ -316,6 +316,20 @@ def test_threads_do_not_change_the_boxes(synth):
         np.testing.assert_array_equal(one, two)
 
 
+def test_set_threads_before_init_changes_the_pool_not_the_boxes(synth):
+    """``set_threads`` (what covviz track calls when it records on two cores): the config says what ran."""
+    two, _ = run_frames(ManifoldTracker(ManifoldConfig(n_particles=400, threads=2), rng=5), synth, 12)
+    tr = ManifoldTracker(ManifoldConfig(n_particles=400, threads=2), rng=5)
+    tr.set_threads(1)
+    assert tr.config.threads == 1 and tr.config_dict()["threads"] == 1 and tr._pool is None
+    one, _ = run_frames(tr, synth, 12)
+    np.testing.assert_array_equal(one, two)
+    with pytest.raises(RuntimeError, match="before init"):
+        tr.set_threads(2)
+    with pytest.raises(ValueError, match="at least 1"):
+        ManifoldTracker().set_threads(0)
+
+
 def test_blas_threads_do_not_change_the_boxes(synth):
     # BLAS splits long sums by thread count; the hot path keeps such sums out of
     # BLAS, so `covviz bench` (BLAS threads = cores / jobs) replays `covviz track`

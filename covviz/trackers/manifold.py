@@ -439,6 +439,26 @@ class ManifoldTracker:
     def config_dict(self) -> dict:
         return self.config.as_dict()
 
+    def set_threads(self, n: int) -> None:
+        """Observe with ``n`` threads (``config.threads``) from now on; before :meth:`init`.
+
+        Boxes never depend on it (the observation's chunks are fixed, see
+        :mod:`covviz.model.observation`); only the speed does, and that depends on what
+        else the process runs (``covviz track`` takes one thread on two cores when it
+        records: the recorder's thread is then the busier one).
+        """
+        n = int(n)
+        if n < 1:
+            raise ValueError(f"threads must be at least 1, got {n}")
+        if self.particles is not None or self._closed:
+            raise RuntimeError("set the threads before init() (and before close())")
+        if n == self.config.threads:
+            return
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+        self.config = self.config.replace(threads=n)
+        self._pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="covviz-observe") if n > 1 else None
+
     @property
     def observation_model(self) -> ObservationModel | None:
         """The frozen observation model (built at :meth:`init`), for observers."""
