@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 
-from covviz.cli.track import RECORDING_ONE_THREAD_CORES
+from covviz.api import RECORDING_ONE_THREAD_CORES
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.diagnosis.detector import drift_watch
 from covviz.diagnosis.drift import Diagnoser

@@ -44,6 +44,20 @@ def test_same_seed_same_boxes_as_covviz_track(tmp_path, monkeypatch):
     np.testing.assert_allclose(api.boxes, cli_boxes, atol=0.006)  # the file keeps 2 decimals
 
 
+def test_a_recorded_run_on_two_cores_observes_with_one_thread_as_covviz_track(tmp_path, monkeypatch):
+    import os
+
+    from covviz.trackers.manifold import ManifoldConfig
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    kw = {"trackers": ["manifold"], "seed": 2, "max_frames": 8, "particles": 30, "counterfactual": False}
+    recorded = covviz.track(None, save=tmp_path / "r.rrd", **kw)[0]
+    plain = covviz.track(None, **kw)[0]
+    own = covviz.track(None, save=tmp_path / "c.rrd", config=ManifoldConfig(n_particles=30, threads=2), **kw)[0]
+    assert (recorded.config["threads"], plain.config["threads"], own.config["threads"]) == (1, 2, 2)
+    np.testing.assert_array_equal(recorded.boxes, plain.boxes)  # threads change the speed only
+
+
 class StillTracker:
     """A tracker of our own, following the protocol only (no registry)."""
 

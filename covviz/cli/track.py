@@ -297,31 +297,23 @@ def _track(args) -> int:
     finally:
         _remove_empty(created)  # those the lock files alone kept (a run stopped before its first write)
 
-#: Cores up to which a recorded run observes with one thread (see _threads_for_recording).
-RECORDING_ONE_THREAD_CORES = 2
-
-
 def _threads_for_recording(args, trackers) -> None:
-    """A recorded run on two cores: the manifold trackers observe with one thread, not two.
+    """A recorded run on two cores observes with one thread (:func:`covviz.api.observe_threads_for_recording`).
 
-    The recorder's thread (the detector, the diagnosis, the views) is then the busier one, and a
-    second observation thread only takes the core it needs: on Car4's first 200 frames the whole
-    recorded run took 0.95x the time with one (seven alternating pairs, 0.88-0.98), the run without
-    a recording 1.09x (so it keeps two). Boxes never depend on it; a ``threads`` given in ``--config``
-    or in a variant's file is kept, and the results' config says what ran.
+    A ``threads`` given in ``--config`` or in a variant's file is kept.
     """
     import json
-    import os
+
+    from covviz.api import observe_threads_for_recording
 
     live = bool(args.spawn or args.connect or args.serve_web)
-    if (args.no_save and not live) or (os.cpu_count() or 1) > RECORDING_ONE_THREAD_CORES:
+    if args.no_save and not live:
         return
     config_path = getattr(args, "config", None)
     given = config_path is not None and "threads" in json.loads(Path(config_path).read_text())  # read_config checked it
-    for spec, tr in zip(tracker_specs(args.trackers), trackers):
-        own = spec.config_dict() if spec.config_path is not None else None
-        if hasattr(tr, "set_threads") and not ("threads" in own if own is not None else given):
-            tr.set_threads(1)
+    specs = tracker_specs(args.trackers)
+    keep = ["threads" in s.config_dict() if s.config_path is not None else given for s in specs]
+    observe_threads_for_recording(trackers, keep)
 
 
 def _counterfactuals(args, seq, n_frames: int, trackers):
