@@ -156,7 +156,7 @@ def _recording_observers(
     save = None if args.no_save else (args.save or default_recording_path(seq.name, args.trackers, args.seed))
     if args.no_save and args.save is not None:
         raise UsageError("--save and --no-save contradict each other; give one")
-    live = bool(args.spawn or args.connect or args.serve_web)
+    live = _live(args)
     from covviz.runner import BackgroundObserver, Pipeline
 
     if save is not None:
@@ -297,6 +297,11 @@ def _track(args) -> int:
     finally:
         _remove_empty(created)  # those the lock files alone kept (a run stopped before its first write)
 
+def _live(args) -> bool:
+    """The run streams to a viewer (``--spawn``, ``--connect``, ``--serve-web``)."""
+    return bool(args.spawn or args.connect or args.serve_web)
+
+
 def _threads_for_recording(args, trackers) -> None:
     """A recorded run on two cores observes with one thread (:func:`covviz.api.observe_threads_for_recording`).
 
@@ -306,7 +311,7 @@ def _threads_for_recording(args, trackers) -> None:
 
     from covviz.api import observe_threads_for_recording
 
-    live = bool(args.spawn or args.connect or args.serve_web)
+    live = _live(args)
     if args.no_save and not live:
         return
     config_path = getattr(args, "config", None)

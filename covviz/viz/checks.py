@@ -36,12 +36,13 @@ def jpeg_bytes(image: np.ndarray, quality: int) -> bytes:
     img = np.asarray(image)
     if img.dtype != np.uint8:
         img = np.clip(img, 0, 255).astype(np.uint8)
+    img = np.ascontiguousarray(img)
     if img.ndim == 3 and img.shape[2] == 3:
         # OpenCV encodes BGR; cvtColor swaps the channels exactly, 40x faster than a strided copy (0.27 ms).
-        img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2BGR)
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
     elif img.ndim != 2:
         raise ValueError(f"a frame must have shape (H, W) or (H, W, 3), got {img.shape}")
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(img), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
         raise ValueError("JPEG encoding of the frame failed")
     return buf.tobytes()

@@ -24,7 +24,7 @@ from covviz.records import frame_number
 from covviz.runner import Observer
 from covviz.viz import paths as P
 from covviz.viz.description import viewer_safe
-from covviz.viz.series import SeriesBuffer
+from covviz.viz.series import RECORDER_EVERY, RECORDER_SECONDS, SeriesBuffer
 
 __all__ = ["DriftRecorder", "probability_path", "threshold_path"]
 
@@ -47,9 +47,9 @@ class DriftRecorder(Observer):
     (:class:`~covviz.viz.series.SeriesBuffer`; the rest at ``on_end``); alarms at once.
     """
 
-    def __init__(self, stream: rr.RecordingStream, series_seconds: float | None = 2.0) -> None:
+    def __init__(self, stream: rr.RecordingStream, series_seconds: float | None = RECORDER_SECONDS) -> None:
         self.stream = stream
-        self.series = SeriesBuffer(stream, every=250, seconds=series_seconds)
+        self.series = SeriesBuffer(stream, every=RECORDER_EVERY, seconds=series_seconds)
         self._paths: list[P.TrackerPaths] = []
         self._thresholds: list[float | None] = []
         self._last = None

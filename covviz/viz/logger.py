@@ -70,7 +70,7 @@ from covviz.viz.palette import (
     weight_levels,
     weight_lut,
 )
-from covviz.viz.series import SeriesBuffer
+from covviz.viz.series import RECORDER_EVERY, RECORDER_SECONDS, SeriesBuffer
 from covviz.viz.sinks import FLUSH_TIMEOUT, close_stream
 
 __all__ = ["LoggerConfig", "RerunLogger"]
@@ -143,8 +143,8 @@ class LoggerConfig:
     mds_every: int = MDS_EVERY
     likelihood_every: int | None = None
     spread_every: int = 3
-    series_every: int = 250
-    series_seconds: float | None = 2.0
+    series_every: int = RECORDER_EVERY
+    series_seconds: float | None = RECORDER_SECONDS
     spread_templates: int = 32
     top_k: int = 10
     mds_max_templates: int = 32

@@ -23,7 +23,13 @@ import rerun as rr
 
 from covviz.viz import paths as P
 
-__all__ = ["SeriesBuffer"]
+__all__ = ["RECORDER_EVERY", "RECORDER_SECONDS", "SeriesBuffer"]
+
+#: The recorders' series (:class:`covviz.viz.logger.LoggerConfig`, :class:`covviz.viz.drift.DriftRecorder`):
+#: sent once the oldest value held is this many seconds old ...
+RECORDER_SECONDS = 2.0
+#: ... or this many frames are held.
+RECORDER_EVERY = 250
 
 
 class SeriesBuffer:
