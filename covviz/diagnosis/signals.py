@@ -46,10 +46,10 @@ import math
 from collections import deque
 from dataclasses import asdict, dataclass
 
-import cv2
 import numpy as np
 
 from covviz.model.adaptive import robust_z
+from covviz.model.flow import FB_GRID, LK_LEVELS, LK_WINDOW, ROI_MARGIN, gray8, median_flow
 
 __all__ = ["GENERIC_SIGNALS", "PARTICLE_SIGNALS", "SIGNALS", "SignalConfig", "SignalObserver", "fb_flow", "psr"]
 
@@ -60,13 +60,6 @@ PARTICLE_SIGNALS = ("ess", "dmin_z", "mode_mass", "cloud_gap")
 #: Every signal, in the order they are saved.
 SIGNALS = GENERIC_SIGNALS + PARTICLE_SIGNALS
 
-#: Points per side of the forward-backward grid inside the box.
-FB_GRID = 8
-#: LK window (pixels) and pyramid levels.
-LK_WINDOW = 11
-LK_LEVELS = 2
-#: The LK region of interest: the box grown by this many box sizes on each side.
-ROI_MARGIN = 0.75
 #: Looks averaged into ``d_recent``.
 RECENT = 10
 #: Running window (frames) and the fewest frames of ``dmin_z``.
@@ -157,72 +150,16 @@ def _rec_pose(rec) -> np.ndarray | None:
 # --------------------------------------------------------------------------- #
 # pure helpers
 # --------------------------------------------------------------------------- #
-def _gray8(frame: np.ndarray) -> np.ndarray:
-    f = np.asarray(frame)
-    if f.ndim == 3:
-        f = cv2.cvtColor(f if f.dtype == np.uint8 else np.clip(f, 0, 255).astype(np.uint8), cv2.COLOR_RGB2GRAY)
-    elif f.dtype != np.uint8:
-        f = np.clip(f * (255.0 if f.max() <= 1.0 else 1.0), 0, 255).astype(np.uint8)
-    return f
-
-
 def _logm_spd(C: np.ndarray) -> np.ndarray:
     w, V = np.linalg.eigh(C)
     return (V * np.log(np.maximum(w, 1e-12))) @ V.T
 
 
 def fb_flow(prev: np.ndarray, cur: np.ndarray, box, cfg: SignalConfig | None = None) -> tuple[float, float, np.ndarray]:
-    """Forward-backward LK error and median flow of a point grid inside ``box`` (Kalal et al., ICPR 2010).
-
-    Parameters
-    ----------
-    prev, cur : ndarray, shape (H, W), uint8
-        Consecutive grey frames.
-    box : array_like, shape (4,)
-        ``x, y, w, h`` in ``prev``, pixels (0-based).
-
-    Returns
-    -------
-    fb : float
-        Median forward-backward error of the tracked points, in box sizes ``sqrt(w h)`` (``nan`` if none).
-    fail : float
-        Share of the points lost forward or backward (1 if the box is off the frame).
-    flow : ndarray, shape (2,)
-        Median forward displacement of the tracked points, pixels (``nan`` if none).
-    """
+    """Forward-backward LK error, share of lost points and median flow of a grid inside ``box``
+    (:func:`covviz.model.flow.median_flow` with the grid, window, levels and margin of ``cfg``)."""
     cfg = cfg or SignalConfig()
-    nan2 = np.full(2, np.nan)
-    x, y, w, h = (float(v) for v in np.asarray(box, dtype=np.float64).reshape(4))
-    H, W = prev.shape[:2]
-    if not all(map(math.isfinite, (x, y, w, h))) or w <= 1 or h <= 1:
-        return float("nan"), 1.0, nan2
-    m = cfg.roi_margin
-    x0, y0 = max(0, math.floor(x - m * w)), max(0, math.floor(y - m * h))
-    x1, y1 = min(W, math.ceil(x + w + m * w)), min(H, math.ceil(y + h + m * h))
-    # the grid: points inside the box, 10% in from its edges, clipped to the frame
-    u = (np.arange(cfg.fb_grid) + 0.5) / cfg.fb_grid
-    gx = np.clip(x + w * (0.1 + 0.8 * u), 0, W - 1)
-    gy = np.clip(y + h * (0.1 + 0.8 * u), 0, H - 1)
-    pts = np.stack(np.meshgrid(gx, gy), -1).reshape(-1, 2)
-    inside = (pts[:, 0] >= x0) & (pts[:, 0] < x1 - 1) & (pts[:, 1] >= y0) & (pts[:, 1] < y1 - 1)
-    if x1 - x0 < 8 or y1 - y0 < 8 or inside.sum() < 4:
-        return float("nan"), 1.0, nan2
-    pts = pts[inside]
-    a, b = prev[y0:y1, x0:x1], cur[y0:y1, x0:x1]
-    p0 = (pts - (x0, y0)).astype(np.float32).reshape(-1, 1, 2)
-    lk = {"winSize": (cfg.lk_window, cfg.lk_window), "maxLevel": cfg.lk_levels,
-          "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)}
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)
-    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, None, **lk)
-    ok = (st1.ravel() == 1) & (st2.ravel() == 1)
-    n_all = cfg.fb_grid * cfg.fb_grid
-    fail = 1.0 - ok.sum() / n_all
-    if not ok.any():
-        return float("nan"), float(fail), nan2
-    size = math.sqrt(w * h)
-    err = np.hypot(*(p0[ok, 0] - p0b[ok, 0]).T)
-    flow = np.median((p1[ok, 0] - p0[ok, 0]).astype(np.float64), axis=0)
-    return float(np.median(err) / size), float(fail), flow
+    return median_flow(prev, cur, box, cfg.fb_grid, cfg.lk_window, cfg.lk_levels, cfg.roi_margin)
 
 
 def psr(d: np.ndarray, peak: int, side: np.ndarray) -> float:
@@ -278,7 +215,7 @@ class SignalObserver:
         self._prev_gray = None
 
     def on_frame(self, frame, records) -> None:
-        gray = _gray8(frame.image)
+        gray = gray8(frame.image)
         for j, (s, rec) in enumerate(zip(self.states, records)):
             row = self._row(s, frame, rec, gray, int(frame.index))
             s.rows.append(row)
