@@ -79,6 +79,7 @@ from covviz.model.dynamics import (
     template_walk,
 )
 from covviz.model.features import N_FEATURES, pose_corners, pose_to_box
+from covviz.model.flow import gray8, median_flow, trusted
 from covviz.model.image import check_init_box
 from covviz.model.observation import (
     OBSERVATION_SPECS,
@@ -187,6 +188,14 @@ class ManifoldConfig:
         The jump noise, the template walk's σ and re-detection following the
         filter's own loss evidence (:mod:`covviz.model.adaptive`); off in
         ``manifold-paper``.
+    flow_share : float
+        A motion prior from the image: each frame, this share of the particles
+        (drawn at random) takes as its velocity the median Lucas–Kanade flow of
+        the last estimate's box from the previous frame to this one
+        (:func:`covviz.model.flow.median_flow`, forward–backward checked, used
+        only when :func:`covviz.model.flow.trusted`), before the kinematic
+        step; the others keep their own. 0: off (the default, and always in
+        ``manifold-paper``; docs/tuning.md has why it is not on yet).
     """
 
     n_particles: int = 600
@@ -214,6 +223,7 @@ class ManifoldConfig:
     search_pull: float = 1.0
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     adaptive: AdaptiveDiffusion = field(default_factory=AdaptiveDiffusion)
+    flow_share: float = 0.0
 
     def __post_init__(self):
         check(self, MANIFOLD_SPECS)
@@ -287,6 +297,7 @@ MANIFOLD_SPECS: dict[str, Spec] = {
     "search_pull": Spec("float", 0, 1),
     "observation": Spec("config", cls=ObservationConfig),
     "adaptive": Spec("config", cls=AdaptiveDiffusion),
+    "flow_share": Spec("float", 0, 1),
 }
 
 
@@ -423,6 +434,7 @@ class ManifoldTracker:
         self.quadrant_state: QuadrantState | None = None
         self.anchor: AnchorState | None = None
         self.adapt: AdaptState | None = None
+        self.flow: FlowState | None = None
         self.last_record: FrameRecord | None = None
         #: An experiment's hand in update() (covviz.diagnosis.counterfactual); None in normal runs.
         self.intervention: Intervention | None = None
@@ -491,6 +503,7 @@ class ManifoldTracker:
             quadrant_state=self.quadrant_state,
             anchor=self.anchor,
             adapt=self.adapt,
+            flow=self.flow,
             rng_state=copy.deepcopy(self.rng.bit_generator.state),
             index=self._index,
         )
@@ -510,6 +523,7 @@ class ManifoldTracker:
         self.quadrant_state = state.quadrant_state
         self.anchor = state.anchor
         self.adapt = state.adapt
+        self.flow = state.flow
         self.rng.bit_generator.state = copy.deepcopy(state.rng_state)
         self._index = state.index
         self.last_record = None
@@ -539,6 +553,7 @@ class ManifoldTracker:
         self.quadrant_state = model.initial_quadrant_state() if cfg.quadrant_reliability > 0 else None
         self.anchor = AnchorState(_ro(L0), 1.0) if cfg.anchor_pull > 0 else None
         self.adapt = AdaptState.start(pose[0], L0) if cfg.adaptive.enabled else None
+        self.flow = FlowState(_ro8(gray8(frame)), _ro(b)) if cfg.flow_share > 0 else None
         self.particles = ParticleSet(states, np.broadcast_to(L0, (n, *L0.shape)).copy(), np.full(n, -np.log(n)))
         self._index = 0
         self.last_record = FrameRecord(
@@ -552,6 +567,25 @@ class ManifoldTracker:
             timings={"total": time.perf_counter() - t0},
             inputs=FrameInputs(g0, None, self.colour, self.quadrant_state),
         )
+
+    def _flow_velocities(self, ps: ParticleSet, cur8: np.ndarray) -> ParticleSet:
+        """``flow_share`` of the particles with the velocity that moves them by the last box's median flow.
+
+        The kinematic step damps the velocity (``v ← a·v + u``) before it moves the centre, so
+        the velocity set is ``flow / a``: a chosen particle lands at ``x + flow`` plus its noise.
+        An untrusted flow (:func:`covviz.model.flow.trusted`) changes nothing and draws nothing.
+        """
+        fb, fail, f = median_flow(self.flow.frame, cur8, self.flow.box)
+        if not trusted(fb, fail, f):
+            return ps
+        st = np.array(ps.states)
+        n = len(st)
+        k = round(self.config.flow_share * n)
+        idx = np.arange(n) if k == n else self.rng.permutation(n)[:k]
+        a = self.config.kinematics.velocity_decay
+        st[idx, VX] = f[0] / a
+        st[idx, VY] = f[1] / a
+        return ParticleSet(st, ps.templates, ps.log_weights)
 
     def _intervene(self, hook: Intervention, frame, gray, states, templates):
         """The search and model fixes of a replay: particles moved to the truth, the appearance set from it.
@@ -646,6 +680,11 @@ class ManifoldTracker:
         t_start = time.perf_counter()
         ps = self.particles
         self._index += 1
+        cur8 = None
+        if self.flow is not None:
+            # 0. the motion prior: a share of the particles moves with the last box's content
+            cur8 = gray8(frame)
+            ps = self._flow_velocities(ps, cur8)
 
         # 1. propagate kinematics and templates (their noise following the last frame's evidence)
         adapt = self.adapt
@@ -734,6 +773,8 @@ class ManifoldTracker:
         box = pose_to_box(est_pose[None], model.base_wh)[0]
         if colour_state is not None:
             self.colour = fgbg.update_colour_model(colour_state, frame, box, cfg.colour_rate)
+        if cur8 is not None:
+            self.flow = FlowState(_ro8(cur8), _ro(box))
         t4 = time.perf_counter()
         tm["estimate"] = t4 - t3
 
@@ -803,6 +844,15 @@ class AnchorState:
 
 
 @dataclass(frozen=True, slots=True, eq=False)
+class FlowState:
+    """The motion prior's memory (``ManifoldConfig.flow_share``): the last frame, grey ``uint8``, and
+    the box estimated on it. Read-only arrays."""
+
+    frame: np.ndarray
+    box: np.ndarray
+
+
+@dataclass(frozen=True, slots=True, eq=False)
 class ManifoldState:
     """A :class:`ManifoldTracker`'s state between two frames (:meth:`ManifoldTracker.snapshot`).
 
@@ -821,6 +871,8 @@ class ManifoldState:
     anchor : AnchorState or None
     adapt : AdaptState or None
         The adaptive diffusion's evidence and last confident pose (None when off).
+    flow : FlowState or None
+        The motion prior's last frame and box (None when off).
     rng_state : dict
         The bit generator's state (``Generator.bit_generator.state``).
     index : int
@@ -835,12 +887,19 @@ class ManifoldState:
     quadrant_state: QuadrantState | None
     anchor: AnchorState | None
     adapt: AdaptState | None
+    flow: FlowState | None
     rng_state: dict
     index: int
 
 
 def _ro(a: np.ndarray) -> np.ndarray:
     a = np.array(a, dtype=np.float64)
+    a.flags.writeable = False
+    return a
+
+
+def _ro8(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=np.uint8)
     a.flags.writeable = False
     return a
 
@@ -909,6 +968,7 @@ PAPER_LIKELIHOOD = {
     "scale_steps": 0,
     "rotation_steps": 0,
     "adaptive": AdaptiveDiffusion(enabled=False),
+    "flow_share": 0.0,
 }
 #: The derivative normalisation and the colour term off, the quadrant term (and the adaptive diffusion) kept:
 #: the likelihood of before issue 14 on today's dynamics (for ablations and speed).
