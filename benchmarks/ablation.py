@@ -15,8 +15,10 @@ Usage:
 The variants (``VARIANTS``): the default of before issue 14 (the quadrant term:
 ``NEW_TERMS_OFF``), that plus each new term alone, all of them (the default,
 ``ManifoldConfig()``), the default without the gradient floor, the default with the paper's
-constant noise (no adaptive diffusion, issue 24), and ``manifold-paper``
-(``PAPER_LIKELIHOOD``). These
+constant noise (no adaptive diffusion, issue 24), ``manifold-paper``
+(``PAPER_LIKELIHOOD``), and the default with the motion prior from the image
+(``flow_share``, off by default: docs/tuning.md). ``--cost-only`` times ``update()``
+without running the bench, e.g. ``--variants default,flow --cost-only``. These
 machines are noisy: the costs are ratios measured in one run; the absolute
 figures name the machine they ran on.
 """
@@ -51,6 +53,7 @@ VARIANTS: dict[str, tuple[str, str, dict]] = {
     "static": ("the default, constant noise (no adaptive diffusion)", "manifold",
                {"adaptive": {"enabled": False}}),
     "paper": ("manifold-paper", "manifold-paper", {}),
+    "flow": ("the default + the flow prior (flow_share 0.5, off by default)", "manifold", {"flow_share": 0.5}),
 }
 SEED_SETS = {"Seeds 0–2 (decision)": (0, 1, 2), "Seeds 3–5 (confirmation)": (3, 4, 5)}
 
@@ -113,7 +116,8 @@ def cost_table(sequences: list[str], keys, frames: int, repeat: int) -> list[str
     from covviz.data.sequences import open_sequence
 
     base = "previous" if "previous" in keys else "static" if "static" in keys else None
-    what = {"previous": "the new terms", "static": "the adaptive diffusion"}.get(base, "—")
+    what = {"previous": "the new terms", "static": "the adaptive diffusion"}.get(
+        base, "the flow prior" if "flow" in keys else "—")
     lines = ["| sequence (frame) | " + " | ".join(VARIANTS[k][0] for k in keys)
              + f" | added by {what}, share of the default's update() |",
              "|---|" + "---:|" * (len(keys) + 1)]
@@ -131,11 +135,28 @@ def cost_table(sequences: list[str], keys, frames: int, repeat: int) -> list[str
                 best[k] = min(best[k], dt)
         h, w = imgs[0].shape[:2]
         added = 1 - best[base] / best["default"] if base and "default" in best else float("nan")
+        if base is None and "flow" in best and "default" in best:  # the flow prior adds to the default
+            added = best["flow"] / best["default"] - 1
         label = Path(name).name if not name.startswith("synthetic") else "synthetic"
         lines.append(f"| {label} ({w}×{h}) | " + " | ".join(f"{1e3 * best[k]:.2f}" for k in keys)
                      + (f" | {100 * added:+.0f}% |" if np.isfinite(added) else " | — |"))
         print(lines[-1], flush=True)
     return lines
+
+
+def _auc_section(args, keys) -> list[str]:
+    """Run the variants' benches and return the AUC tables (markdown lines)."""
+    dirs = run_variants(Path(args.root), Path(args.out), args.seeds, args.jobs, keys)
+    auc = auc_table(dirs)
+    md = ["## Ablation of the default likelihood (manifold tracker)", "",
+          ("Success AUC (OTB), mean ± standard deviation over the seeds; the **mean** row is the mean over the "
+          f"{len({s for a in auc.values() for s, _ in a})} sequences per seed, ± its standard deviation over the seeds. "
+          "Each column is `covviz bench` of one `ManifoldConfig` (`benchmarks/ablation.py`, results in "
+          f"`{args.out}/<variant>`): the previous default is `NEW_TERMS_OFF` (the quadrant term only), each change "
+          "alone is that plus one change, *both* is `ManifoldConfig()` (derivative normalisation with its floor "
+          "`grad_floor`, and the colour term), and `manifold-paper` is `PAPER_LIKELIHOOD`."),
+          ""]
+    return md + markdown_tables(auc, set(range(args.seeds)))
 
 
 def main(argv=None) -> int:
@@ -147,6 +168,7 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", default=",".join(VARIANTS), help=f"subset of {','.join(VARIANTS)}")
     ap.add_argument("--md", default=None, help="write the markdown report here (e.g. docs/ablation.md)")
     ap.add_argument("--no-cost", action="store_true", help="skip the timing of update()")
+    ap.add_argument("--cost-only", action="store_true", help="only the timing of update(): no bench, no AUC tables")
     ap.add_argument("--cost-sequences", default="Bolt2,Human3,synthetic",
                     help="sequences (names under ROOT, or 'synthetic') to time at 600 particles")
     ap.add_argument("--cost-frames", type=int, default=150)
@@ -157,18 +179,10 @@ def main(argv=None) -> int:
     unknown = [k for k in keys if k not in VARIANTS]
     if unknown:
         ap.error(f"unknown variant(s) {unknown}; choose from {list(VARIANTS)}")
-    dirs = run_variants(root, Path(args.out), args.seeds, args.jobs, keys)
-    auc = auc_table(dirs)
-    md = ["## Ablation of the default likelihood (manifold tracker)", "",
-          ("Success AUC (OTB), mean ± standard deviation over the seeds; the **mean** row is the mean over the "
-          f"{len({s for a in auc.values() for s, _ in a})} sequences per seed, ± its standard deviation over the seeds. "
-          "Each column is `covviz bench` of one `ManifoldConfig` (`benchmarks/ablation.py`, results in "
-          f"`{args.out}/<variant>`): the previous default is `NEW_TERMS_OFF` (the quadrant term only), each change "
-          "alone is that plus one change, *both* is `ManifoldConfig()` (derivative normalisation with its floor "
-          "`grad_floor`, and the colour term), and `manifold-paper` is `PAPER_LIKELIHOOD`."),
-          ""]
-    md += markdown_tables(auc, set(range(args.seeds)))
-    if not args.no_cost:
+    md = []
+    if not args.cost_only:
+        md += _auc_section(args, keys)
+    if args.cost_only or not args.no_cost:
         seqs = [("synthetic" if s == "synthetic" else str(root / s)) for s in args.cost_sequences.split(",")]
         ck = [k for k in keys if k in VARIANTS]
         md += ["### Cost at 600 particles", "",
