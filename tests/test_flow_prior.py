@@ -70,6 +70,7 @@ def test_off_the_tracker_keeps_no_frame(frames):
     cfg = ManifoldConfig(n_particles=N)
     tr, _ = _run(cfg, seq, images, last=3)
     assert tr.flow is None and tr.snapshot().flow is None
+    assert "flow" not in tr.last_record.timings
 
 
 def test_a_share_of_the_particles_moves_with_the_measured_flow(frames):
@@ -100,6 +101,7 @@ def test_snapshot_carries_the_flow_state_bit_for_bit(frames):
     tr, _ = _run(cfg, seq, images, last=20)
     state = tr.snapshot()
     assert state.flow is not None and not state.flow.frame.flags.writeable
+    assert "flow" in tr.last_record.timings  # its own stage in the record's timings (and the recording's)
     a = [tr.update(images[i]) for i in range(21, 31)]
     recs_a = tr.last_record
     fresh = ManifoldTracker(cfg, rng=99)

@@ -681,10 +681,13 @@ class ManifoldTracker:
         ps = self.particles
         self._index += 1
         cur8 = None
+        t_prop = t_start
         if self.flow is not None:
             # 0. the motion prior: a share of the particles moves with the last box's content
             cur8 = gray8(frame)
             ps = self._flow_velocities(ps, cur8)
+            t_prop = time.perf_counter()
+            tm["flow"] = t_prop - t_start
 
         # 1. propagate kinematics and templates (their noise following the last frame's evidence)
         adapt = self.adapt
@@ -704,7 +707,7 @@ class ManifoldTracker:
             )
             n_fresh = int(np.count_nonzero(modes == 3))
         t1 = time.perf_counter()
-        tm["propagate"] = t1 - t_start
+        tm["propagate"] = t1 - t_prop
         gray = model.prepare(frame)
         hook = self.intervention
         if hook is not None:
