@@ -322,6 +322,23 @@ def test_costly_diagnostics_only_on_their_frames(run):
     assert all(len(v) == LoggerConfig().top_k for v in top.values())
 
 
+def test_an_empty_slices_view_says_when_it_is_drawn(run):
+    """On the frames after the slices are cleared, the view holds one label saying which frames have them;
+    on the frames that draw them, the label is cleared."""
+    from covviz.viz.why import slices_note
+
+    t = run["temporal"]
+    p = P.TrackerPaths("manifold")
+    mds_frames = {i + 1 for i in range(N_FRAMES) if i % MDS_EVERY == 0}
+    labels = last(t, f"{p.slices}/note", "Points2D:labels")
+    after = {f + 1 for f in mds_frames if f + 1 <= N_FRAMES} - mds_frames
+    assert after and after <= set(labels)
+    text = slices_note(MDS_EVERY)
+    assert all(list(np.ravel(labels[f])) == [text] for f in after)
+    assert text == "drawn on frames 1, 5, 9, … and around events"
+    assert mds_frames <= set(t[f"{p.slices}/note"]["Clear:is_recursive"])
+
+
 def test_static_context(run):
     s = run["static"]
     description = static_text(s, P.DESCRIPTION)

@@ -522,12 +522,9 @@ class RerunLogger(Observer):
     def _log_tracker(self, s: _TrackerState, frame, record: FrameRecord, gt, prepared_cache,
                      found: FrameNews | None) -> None:
         """Everything one tracker's record says about one frame, view by view; ``found``: the diagnosis's news."""
-        rec = self.stream
         i = int(frame.index)
         problems: list[str] = []
-        for path in s.clear_next:
-            rec.log(path, rr.Clear(recursive=False))
-        s.clear_next = []
+        self._clear_views(s)
         box = self._log_estimate(s, record, problems)
         self._log_particles(s, record, problems)
         s.last_iou = self._log_quality(s, box, gt)
@@ -800,6 +797,15 @@ class RerunLogger(Observer):
         s.clear_next.append(f"{s.paths.slices}/estimate")
         s.clear_next.append(f"{s.paths.slices}/truth")
 
+    def _clear_views(self, s: _TrackerState) -> None:
+        """Clear the last costly views (``s.clear_next``) at the current time; where that empties the
+        slices view, it says when it is drawn instead (a blank panel explains nothing)."""
+        for path in s.clear_next:
+            self.stream.log(path, rr.Clear(recursive=False))
+        if f"{s.paths.slices}/estimate" in s.clear_next:
+            why.log_slices_note(self.stream, s.paths, why.slices_note(self.config.likelihood_period))
+        s.clear_next = []
+
     def _redo_around(self, s: _TrackerState, first: int, last: int) -> None:
         """The costly views of frames ``first..last`` (0-based indices) kept in memory, logged at their frames."""
         here = self._recent[-1][0]
@@ -822,8 +828,7 @@ class RerunLogger(Observer):
             # frame's own views are already logged (a clear logged after them would wipe them out).
             if i + 1 not in s.drawn:
                 self.stream.set_time(P.FRAME_TIMELINE, sequence=frame_number(i) + 1)
-                for path in s.clear_next:
-                    self.stream.log(path, rr.Clear(recursive=False))
+                self._clear_views(s)
             s.clear_next = []
         s.clear_next = pending
         self._set_time(here)

@@ -250,6 +250,18 @@ def log_heatmap(rec: rr.RecordingStream, p: P.TrackerPaths, template_log, observ
     rec.log(f"{p.heatmap}/image", rr.Image(img, color_model="RGB", draw_order=0.0, magnification_filter="Nearest"))
 
 
+def slices_note(every: int) -> str:
+    """What the slices view says on the frames it has no curves (``every``: the likelihood map's period)."""
+    when = f"frames 1, {1 + every}, {1 + 2 * every}, …" if every > 0 else "no regular frame"
+    return f"drawn on {when} and around events"  # short: the view is narrow
+
+
+def log_slices_note(rec: rr.RecordingStream, p: P.TrackerPaths, text: str) -> None:
+    """The note of an empty slices view, at its centre (cleared by :func:`log_slices`)."""
+    rec.log(f"{p.slices}/note", rr.Points2D([[SLICE_WIDTH + SLICE_GAP / 2, SLICE_HEIGHT / 2]], labels=[text],
+                                            radii=[0.0], colors=[(200, 200, 200, 255)], show_labels=True))
+
+
 def _slice_curve(x0: float, values: np.ndarray) -> np.ndarray:
     x = x0 + np.linspace(0.0, SLICE_WIDTH, len(values))
     y = SLICE_HEIGHT * (1.0 - np.clip(np.asarray(values, dtype=np.float64) / SLICE_D_MAX, 0.0, 1.0))
@@ -262,6 +274,7 @@ def log_slices(
 ) -> None:
     """Curves of ``d_eff`` along scale (left) and rotation (right), at the estimate and at the truth."""
     x1 = SLICE_WIDTH + SLICE_GAP
+    rec.log(f"{p.slices}/note", rr.Clear(recursive=False))  # the curves are here: no note of their absence
     for key, sl, col in (("estimate", at_estimate, color), ("truth", at_truth, truth_color)):
         path = f"{p.slices}/{key}"
         if sl is None:
