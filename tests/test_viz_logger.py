@@ -488,6 +488,40 @@ def test_series_sent_as_columns_keep_their_frames_times_and_order(tmp_path):
         SeriesBuffer(stream).add("a/x", 1.0)
 
 
+def test_images_sent_as_columns_read_back_at_their_frames(tmp_path):
+    """SeriesBuffer.add_image: per-frame images (two sizes on one entity, grey and RGB) go out as Image
+    columns with the series and read back byte for byte at their frames, with their format."""
+    from covviz.viz.series import SeriesBuffer
+
+    path = tmp_path / "i.rrd"
+    stream = rr.RecordingStream("covviz-test")
+    stream.save(str(path))
+    buf = SeriesBuffer(stream, every=3)
+    rng = np.random.default_rng(0)
+    grey = {f: rng.integers(0, 256, (4, 6) if f < 5 else (5, 7), dtype=np.uint8) for f in range(1, 8)}
+    rgb = {f: rng.integers(0, 256, (3, 2, 3), dtype=np.uint8) for f in range(1, 8)}
+    for f in range(1, 8):
+        buf.at(f, None)
+        buf.add_image("g", grey[f], "L")
+        buf.add_image("c", rgb[f], "RGB")
+        buf.tick()
+    assert len(buf) == 2  # frames 7: two images held
+    buf.flush()
+    stream.flush()
+    stream.disconnect()
+    t, _ = read_recording(path)
+    for ent, imgs in (("g", grey), ("c", rgb)):
+        got = last(t, ent, "Image:buffer")
+        fmt = last(t, ent, "Image:format")
+        assert set(got) == set(imgs)
+        for f, img in imgs.items():
+            assert bytes(np.asarray(got[f], dtype=np.uint8).ravel()) == img.tobytes()
+            (ff,) = fmt[f]
+            assert (ff["width"], ff["height"]) == (img.shape[1], img.shape[0])
+    with pytest.raises(RuntimeError, match="at"):
+        SeriesBuffer(stream).add_image("g", grey[1], "L")
+
+
 def test_series_flush_once_their_oldest_value_is_seconds_old():
     """The time bound: a flush when the oldest value held reaches ``seconds``, whatever the frame count."""
     from covviz.viz.series import SeriesBuffer

@@ -710,7 +710,7 @@ class RerunLogger(Observer):
             except ValueError as exc:
                 problems.append(f"observed descriptor is not SPD ({exc})")
             else:
-                why.log_heatmap(self.stream, s.paths, est_t, obs_log)
+                why.log_heatmap(self.series, s.paths, est_t, obs_log)
         return est_t
 
     def _log_zoom(self, s: _TrackerState, frame, record: FrameRecord, gt, prepared_cache) -> None:
@@ -726,7 +726,7 @@ class RerunLogger(Observer):
         if int(frame.index) == 0:
             s.initial_patch = patches[0]
         truth = patches[1] if gt is not None else None
-        why.log_zoom(self.stream, s.paths, why.zoom_image([patches[0], truth, s.initial_patch]))
+        why.log_zoom(self.series, s.paths, why.zoom_image([patches[0], truth, s.initial_patch]))
 
     def _prepared(self, s: _TrackerState, frame, record: FrameRecord, prepared_cache):
         """The frame as the tracker's model samples it: the record's own (what update() read), else prepared once."""

@@ -1,5 +1,8 @@
 """Time series sent in columns: one ``rr.send_columns`` per series every second or two, not a log call per value.
 
+Small per-frame images too (the recorder's heatmaps and zoom patches, :meth:`SeriesBuffer.add_image`): a
+``log`` of a 9×31 image cost 0.23 ms of CPU, its share of a column chunk 0.007 ms.
+
 Rerun's per-call cost (~0.1–0.2 ms of CPU for each ``log``, whatever its size) made the
 two dozen scalars the recorder writes per tracker and frame (ESS, weights, distances,
 each likelihood term, IoU, stage timings, …) cost more than the particles. A
@@ -54,6 +57,7 @@ class SeriesBuffer:
         self.seconds = None if seconds is None else float(seconds)
         self._clock = clock
         self._rows: dict[str, tuple[list, list, list]] = {}
+        self._images: dict[tuple, tuple[list, list, list]] = {}  # (path, shape, dtype, colour model) -> rows
         self._frame: int | None = None
         self._seconds: float | None = None
         self._ticks = 0  # frames since the last flush
@@ -74,6 +78,20 @@ class SeriesBuffer:
         seconds.append(self._seconds)
         values.append(float(value))
 
+    def add_image(self, path: str, image: np.ndarray, color_model: str) -> None:
+        """One image of the entity at ``path`` (``(H, W)`` or ``(H, W, C)`` ``uint8``), at the time of the last
+        :meth:`at`; sent with the series as ``rr.Image`` columns. What does not change per frame (draw
+        order, filter, placement) is the caller's to log once, static."""
+        if self._frame is None:
+            raise RuntimeError("SeriesBuffer.at(frame, seconds) must come before add_image()")
+        if self._since is None:
+            self._since = self._clock()
+        img = np.ascontiguousarray(image, dtype=np.uint8)
+        frames, seconds, images = self._images.setdefault((path, img.shape, color_model), ([], [], []))
+        frames.append(self._frame)
+        seconds.append(self._seconds)
+        images.append(img)
+
     def tick(self) -> None:
         """A frame is done: flush once ``every`` frames are held or the oldest value is ``seconds`` old."""
         self._ticks += 1
@@ -83,16 +101,28 @@ class SeriesBuffer:
             self.flush()
 
     def flush(self) -> None:
-        """Send what is held, one column chunk per series."""
+        """Send what is held, one column chunk per series (and per image entity and size)."""
         rows, self._rows = self._rows, {}
+        images, self._images = self._images, {}
         self._ticks, self._since = 0, None
         for path, (frames, seconds, values) in rows.items():
-            indexes = [rr.TimeColumn(P.FRAME_TIMELINE, sequence=np.asarray(frames, dtype=np.int64))]
-            if all(s is not None for s in seconds):
-                indexes.append(rr.TimeColumn(P.TIME_TIMELINE, duration=np.asarray(seconds, dtype=np.float64)))
-            self.stream.send_columns(path, indexes=indexes,
+            self.stream.send_columns(path, indexes=_indexes(frames, seconds),
                                      columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)))
+        for (path, shape, model), (frames, seconds, imgs) in images.items():
+            fmt = rr.components.ImageFormat(width=shape[1], height=shape[0], color_model=model, channel_datatype="U8")
+            self.stream.send_columns(
+                path, indexes=_indexes(frames, seconds),
+                columns=rr.Image.columns(buffer=np.stack(imgs).reshape(len(imgs), -1), format=[fmt] * len(imgs)),
+            )
 
     def __len__(self) -> int:
-        """Values held, not yet sent."""
-        return sum(len(v[2]) for v in self._rows.values())
+        """Values (and images) held, not yet sent."""
+        return sum(len(v[2]) for v in self._rows.values()) + sum(len(v[2]) for v in self._images.values())
+
+
+def _indexes(frames: list, seconds: list) -> list:
+    """The time columns of held rows: the frame numbers, and the seconds when every row has them."""
+    out = [rr.TimeColumn(P.FRAME_TIMELINE, sequence=np.asarray(frames, dtype=np.int64))]
+    if all(s is not None for s in seconds):
+        out.append(rr.TimeColumn(P.TIME_TIMELINE, duration=np.asarray(seconds, dtype=np.float64)))
+    return out

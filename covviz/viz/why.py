@@ -20,6 +20,7 @@ from covviz.model.features import FEATURE_NAMES
 from covviz.viz import paths as P
 from covviz.viz.diagnostics import LikelihoodSlices
 from covviz.viz.palette import colormap_rgb
+from covviz.viz.series import SeriesBuffer
 
 __all__ = [
     "DIFF_RANGE",
@@ -134,6 +135,7 @@ def _log_heatmap_axes(rec, p: P.TrackerPaths) -> None:
     rec.log(f"{p.heatmap}/axes", rr.Image(under, color_model="RGB", draw_order=-10.0), static=True)
     rec.log(f"{p.heatmap}/image", rr.Transform3D(translation=[x0, y0, 0.0], scale=[HEAT_CELL, HEAT_CELL, 1.0]),
             static=True)
+    rec.log(f"{p.heatmap}/image", rr.Image.from_fields(draw_order=0.0, magnification_filter="Nearest"), static=True)
 
 
 #: The slices' underlay: its extent in the view's units and pixels per unit (text drawn into an image
@@ -218,8 +220,9 @@ def zoom_image(patches: list[np.ndarray | None], gap: int = 2) -> np.ndarray:
     return np.concatenate(cols[:-1], axis=1)
 
 
-def log_zoom(rec: rr.RecordingStream, p: P.TrackerPaths, image: np.ndarray) -> None:
-    rec.log(f"{p.zoom}/patches", rr.Image(image, color_model="L"))
+def log_zoom(series: SeriesBuffer, p: P.TrackerPaths, image: np.ndarray) -> None:
+    """The zoom patches of one frame, sent with the series (:meth:`SeriesBuffer.add_image`)."""
+    series.add_image(f"{p.zoom}/patches", image, "L")
 
 
 def _viridis(v: np.ndarray) -> np.ndarray:
@@ -245,9 +248,9 @@ def heatmap_image(template_log: np.ndarray, observed_log: np.ndarray) -> np.ndar
     return np.concatenate([a, g, b, g, c], axis=1)
 
 
-def log_heatmap(rec: rr.RecordingStream, p: P.TrackerPaths, template_log, observed_log) -> None:
-    img = heatmap_image(np.asarray(template_log), np.asarray(observed_log))
-    rec.log(f"{p.heatmap}/image", rr.Image(img, color_model="RGB", draw_order=0.0, magnification_filter="Nearest"))
+def log_heatmap(series: SeriesBuffer, p: P.TrackerPaths, template_log, observed_log) -> None:
+    """The heatmaps of one frame, sent with the series; their draw order and filter are static (:func:`log_static`)."""
+    series.add_image(f"{p.heatmap}/image", heatmap_image(np.asarray(template_log), np.asarray(observed_log)), "RGB")
 
 
 def slices_note(every: int) -> str:
