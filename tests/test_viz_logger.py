@@ -579,3 +579,28 @@ def test_frame_jpeg_is_opencvs_encoding_of_the_bgr_frame():
     assert jpeg_bytes(grey, 60) == cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_QUALITY, 60])[1].tobytes()
     with pytest.raises(ValueError, match="shape"):
         jpeg_bytes(np.zeros((4, 4, 2), np.uint8), 60)
+
+
+def test_views_in_columns_or_one_log_each_record_the_same(tmp_path, run):
+    """views_in_columns=False (what covviz track uses for a live viewer) logs the per-frame views one call each;
+    the recording holds the same particles, dots, centres, heatmaps and zoom patches frame by frame."""
+    path = tmp_path / "live.rrd"
+    trackers = [ManifoldTracker(ManifoldConfig(n_particles=N_PARTICLES), rng=3), IdentityTracker()]
+    record_run(path, trackers, config=LoggerConfig(mds_every=MDS_EVERY, seed=0, views_in_columns=False))
+    live, _ = read_recording(path)
+    cols = run["temporal"]
+    p = P.TrackerPaths("manifold")
+    for entity, column in ((p.particles, "LineStrips2D:strips"), (p.particle_dots, "Points2D:positions"),
+                           (p.particle_dots, "Points2D:colors"), (p.centres, "Points2D:positions"),
+                           (p.centres, "Points2D:radii"), (f"{p.heatmap}/image", "Image:buffer"),
+                           (f"{p.zoom}/patches", "Image:buffer")):
+        a, b = last(cols, entity, column), last(live, entity, column)
+        a = {f: v for f, v in a.items() if np.size(v)}  # a frame with none (all particles boxed): no points
+        b = {f: v for f, v in b.items() if np.size(v)}
+        assert set(a) == set(b) and len(b) >= N_FRAMES - 2, entity
+        for f in b:
+            np.testing.assert_array_equal(np.asarray(a[f], dtype=float), np.asarray(b[f], dtype=float), err_msg=entity)
+    # the per-frame constants: per row in the live file, static in the batched one
+    assert "Points2D:radii" in live[p.particle_dots]
+    _, static = run["temporal"], run["static"]
+    assert p.particle_dots in static and "Points2D:radii" in static[p.particle_dots]

@@ -173,7 +173,8 @@ def _recording_observers(
 
     config = LoggerConfig(
         mds_every=args.mds_every, likelihood_every=args.likelihood_every, seed=args.seed, diagnosis=diagnoser.config,
-        **({"series_seconds": BATCH_SECONDS_LIVE} if live else {}),  # a viewer's plots a batch behind its images
+        # a live viewer: its plots a batch behind its images, but every view on the image as it comes
+        **({"series_seconds": BATCH_SECONDS_LIVE, "views_in_columns": False} if live else {}),
     )
     stream = new_recording(batch_seconds=BATCH_SECONDS_LIVE if live else BATCH_SECONDS)
     attach_sinks(stream, save=save, spawn=args.spawn, connect=args.connect, serve_web=args.serve_web)

@@ -82,6 +82,9 @@ log = logging.getLogger("covviz.viz")
 FRAME_DRAW_ORDER = -20.0
 #: Radius of the centre of the heaviest particle, pixels (radius ∝ sqrt(w / w_max)).
 CENTRE_RADIUS = 3.0
+#: Line radius of the particles' regions, and radius of the dots of the light ones (image pixels).
+PARTICLE_RADIUS = 0.2
+DOT_RADIUS = 0.6
 #: Centres smaller than this radius (pixels; w / w_max < 6 %) are sub-pixel dots and not logged.
 MIN_CENTRE_RADIUS = 0.75
 
@@ -106,6 +109,12 @@ class LoggerConfig:
         were a quarter of a Car4 recording.
     spread_every : int
         The template-cloud spread (a Karcher mean) every this many frames.
+    views_in_columns : bool
+        The views drawn anew on every frame (the particles' regions, dots and centres, the heatmaps,
+        the zoom patches) go out with the series, as columns (:class:`~covviz.viz.series.SeriesBuffer`):
+        about 1.5 ms of the recorder's CPU a frame less on Car4. False: each as its own log call, as
+        ``covviz track`` does for a live viewer, whose Frame view would otherwise draw the particles a
+        batch (up to a second) behind the image.
     spread_templates : int
         The spread is estimated on an evenly strided subset of this many
         templates (the mean distance of a subset estimates the cloud's).
@@ -143,6 +152,7 @@ class LoggerConfig:
     mds_every: int = MDS_EVERY
     likelihood_every: int | None = None
     spread_every: int = 3
+    views_in_columns: bool = True
     series_every: int = RECORDER_EVERY
     series_seconds: float | None = RECORDER_SECONDS
     spread_templates: int = 32
@@ -445,6 +455,11 @@ class RerunLogger(Observer):
                 )
             why.log_static(rec, p, s.prefix, c, s.name in with_cloud)
             story.log_story_static(rec, p)
+            if cfg.views_in_columns and s.info.particles:  # what the particles' column rows leave out
+                rec.log(p.particles, rr.LineStrips2D.from_fields(radii=[PARTICLE_RADIUS], draw_order=20.0),
+                        static=True)
+                rec.log(p.particle_dots, rr.Points2D.from_fields(radii=[DOT_RADIUS], draw_order=19.0), static=True)
+                rec.log(p.centres, rr.Points2D.from_fields(draw_order=25.0), static=True)
             rec.log(
                 p.box,
                 rr.Boxes2D.from_fields(
@@ -585,14 +600,15 @@ class RerunLogger(Observer):
             heavy = wn[order] >= cfg.box_weight
             boxed, dotted = order[heavy], order[~heavy]
             strips = (np.round(closed_strips(pc[boxed]) / q) * q).astype(np.float32)
-            rec.log(
-                p.particles, rr.LineStrips2D(strips, colors=s.lut[level[boxed]], radii=0.2, draw_order=20.0)
-            )
-            rec.log(
-                p.particle_dots,
-                rr.Points2D(np.round(pc[dotted].mean(axis=1) / q) * q, radii=0.6, colors=s.lut[level[dotted]],
-                            draw_order=19.0),
-            )
+            dots = np.round(pc[dotted].mean(axis=1) / q) * q
+            if cfg.views_in_columns:
+                self.series.add_strips(p.particles, strips, s.lut[level[boxed]])
+                self.series.add_points(p.particle_dots, dots, s.lut[level[dotted]])
+            else:
+                rec.log(p.particles, rr.LineStrips2D(strips, colors=s.lut[level[boxed]], radii=PARTICLE_RADIUS,
+                                                     draw_order=20.0))
+                rec.log(p.particle_dots, rr.Points2D(dots, radii=DOT_RADIUS, colors=s.lut[level[dotted]],
+                                                     draw_order=19.0))
             top = top_k(w, cfg.top_k)
             top_any = {"weight": w[top].astype(np.float64), "particle": top.astype(np.int64)}
             dist = checked(record.distances, (len(w),), "distances", problems)
@@ -622,16 +638,12 @@ class RerunLogger(Observer):
             )
             radii = np.round(CENTRE_RADIUS * np.sqrt(wn[order]) * 4) / 4
             vis = radii >= MIN_CENTRE_RADIUS
-            centres = pc[order[vis]].mean(axis=1)
-            rec.log(
-                p.centres,
-                rr.Points2D(
-                    np.round(centres / q) * q,
-                    radii=radii[vis].astype(np.float32),
-                    colors=s.lut[level[order[vis]]],
-                    draw_order=25.0,
-                ),
-            )
+            centres = np.round(pc[order[vis]].mean(axis=1) / q) * q
+            if cfg.views_in_columns:
+                self.series.add_points(p.centres, centres, s.lut[level[order[vis]]], radii[vis])
+            else:
+                rec.log(p.centres, rr.Points2D(centres, radii=radii[vis].astype(np.float32),
+                                               colors=s.lut[level[order[vis]]], draw_order=25.0))
             ess = float(record.ess) if np.isfinite(record.ess) else effective_sample_size(lw)
             self.series.add(p.ess, ess / n)
             self.series.add(p.max_weight, float(w.max()))
@@ -652,7 +664,7 @@ class RerunLogger(Observer):
                     self._log_terms(s, w, dist, contrib)
         elif s.had_particles:
             for path in (p.particles, p.particle_dots, p.top, p.centres):
-                rec.log(path, rr.Clear(recursive=False))
+                rec.log(path, rr.Clear(recursive=False))  # at this frame, after any columns of earlier ones
 
     def _log_terms(self, s: _TrackerState, w: np.ndarray, dist: np.ndarray, contrib: dict) -> None:
         """Each likelihood term's share of ``d_eff²`` and the weight it moved (see :func:`term_shares`)."""
@@ -710,7 +722,7 @@ class RerunLogger(Observer):
             except ValueError as exc:
                 problems.append(f"observed descriptor is not SPD ({exc})")
             else:
-                why.log_heatmap(self.series, s.paths, est_t, obs_log)
+                self._put_image(f"{s.paths.heatmap}/image", why.heatmap_image(est_t, obs_log), "RGB")
         return est_t
 
     def _log_zoom(self, s: _TrackerState, frame, record: FrameRecord, gt, prepared_cache) -> None:
@@ -726,7 +738,15 @@ class RerunLogger(Observer):
         if int(frame.index) == 0:
             s.initial_patch = patches[0]
         truth = patches[1] if gt is not None else None
-        why.log_zoom(self.series, s.paths, why.zoom_image([patches[0], truth, s.initial_patch]))
+        self._put_image(f"{s.paths.zoom}/patches", why.zoom_image([patches[0], truth, s.initial_patch]), "L")
+
+    def _put_image(self, path: str, image: np.ndarray, color_model: str) -> None:
+        """A per-frame image: with the series' columns, or its own log call (``views_in_columns``); its
+        draw order and filter, where it has them, are static (:func:`covviz.viz.why.log_static`)."""
+        if self.config.views_in_columns:
+            self.series.add_image(path, image, color_model)
+        else:
+            self.stream.log(path, rr.Image(image, color_model=color_model))
 
     def _prepared(self, s: _TrackerState, frame, record: FrameRecord, prepared_cache):
         """The frame as the tracker's model samples it: the record's own (what update() read), else prepared once."""

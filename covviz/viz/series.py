@@ -1,7 +1,9 @@
 """Time series sent in columns: one ``rr.send_columns`` per series every second or two, not a log call per value.
 
 Small per-frame images too (the recorder's heatmaps and zoom patches, :meth:`SeriesBuffer.add_image`): a
-``log`` of a 9×31 image cost 0.23 ms of CPU, its share of a column chunk 0.007 ms.
+``log`` of a 9×31 image cost 0.23 ms of CPU, its share of a column chunk 0.007 ms. And per-frame point and
+rectangle batches of any length (the particles, :meth:`SeriesBuffer.add_points`, :meth:`SeriesBuffer.add_strips`):
+a ``log`` of 540 coloured points 0.14 ms, its column share 0.04; of 60 rectangles 0.13 and 0.01.
 
 Rerun's per-call cost (~0.1–0.2 ms of CPU for each ``log``, whatever its size) made the
 two dozen scalars the recorder writes per tracker and frame (ESS, weights, distances,
@@ -57,7 +59,8 @@ class SeriesBuffer:
         self.seconds = None if seconds is None else float(seconds)
         self._clock = clock
         self._rows: dict[str, tuple[list, list, list]] = {}
-        self._images: dict[tuple, tuple[list, list, list]] = {}  # (path, shape, dtype, colour model) -> rows
+        self._images: dict[tuple, tuple[list, list, list]] = {}  # (path, shape, colour model) -> rows
+        self._batches: dict[tuple, tuple[list, list, list]] = {}  # (path, kind) -> frames, seconds, {field: array}
         self._frame: int | None = None
         self._seconds: float | None = None
         self._ticks = 0  # frames since the last flush
@@ -92,6 +95,34 @@ class SeriesBuffer:
         seconds.append(self._seconds)
         images.append(img)
 
+    def add_points(self, path: str, positions: np.ndarray, colors: np.ndarray, radii: np.ndarray | None = None) -> None:
+        """One frame's ``Points2D`` of the entity at ``path`` (``(n, 2)`` positions, ``(n, 4)`` uint8 colours,
+        optional ``(n,)`` radii; ``n`` may be 0: the frame shows none), sent with the series."""
+        fields = {"positions": np.asarray(positions, np.float32).reshape(-1, 2),
+                  "colors": np.asarray(colors, np.uint8).reshape(-1, 4)}
+        if radii is not None:
+            fields["radii"] = np.asarray(radii, np.float32).reshape(-1)
+        self._add_batch(path, "points", fields)
+
+    def add_strips(self, path: str, strips: np.ndarray, colors: np.ndarray) -> None:
+        """One frame's ``LineStrips2D`` of ``(n, k, 2)`` strips of ``k`` points each (``n`` may be 0), with
+        ``(n, 4)`` uint8 colours, sent with the series."""
+        strips = np.asarray(strips, np.float32)
+        if strips.ndim != 3 or strips.shape[2] != 2:
+            raise ValueError(f"strips must be (n, k, 2), got shape {strips.shape}")
+        self._add_batch(path, "strips", {"strips": strips,
+                                         "colors": np.asarray(colors, np.uint8).reshape(-1, 4)})
+
+    def _add_batch(self, path: str, kind: str, fields: dict) -> None:
+        if self._frame is None:
+            raise RuntimeError(f"SeriesBuffer.at(frame, seconds) must come before add_{kind}()")
+        if self._since is None:
+            self._since = self._clock()
+        frames, seconds, rows = self._batches.setdefault((path, kind), ([], [], []))
+        frames.append(self._frame)
+        seconds.append(self._seconds)
+        rows.append(fields)
+
     def tick(self) -> None:
         """A frame is done: flush once ``every`` frames are held or the oldest value is ``seconds`` old."""
         self._ticks += 1
@@ -104,6 +135,7 @@ class SeriesBuffer:
         """Send what is held, one column chunk per series (and per image entity and size)."""
         rows, self._rows = self._rows, {}
         images, self._images = self._images, {}
+        batches, self._batches = self._batches, {}
         self._ticks, self._since = 0, None
         for path, (frames, seconds, values) in rows.items():
             self.stream.send_columns(path, indexes=_indexes(frames, seconds),
@@ -114,10 +146,28 @@ class SeriesBuffer:
                 path, indexes=_indexes(frames, seconds),
                 columns=rr.Image.columns(buffer=np.stack(imgs).reshape(len(imgs), -1), format=[fmt] * len(imgs)),
             )
+        for (path, kind), (frames, seconds, rows) in batches.items():
+            for group in _same_shape(rows, kind):
+                fr = [frames[i] for i in group]
+                sec = [seconds[i] for i in group]
+                cat = {k: np.concatenate([rows[i][k] for i in group]) for k in rows[group[0]]}
+                lengths = [len(rows[i]["colors"]) for i in group]
+                cols = (rr.Points2D.columns(**cat) if kind == "points" else rr.LineStrips2D.columns(**cat))
+                self.stream.send_columns(path, indexes=_indexes(fr, sec), columns=cols.partition(lengths))
 
     def __len__(self) -> int:
         """Values (and images) held, not yet sent."""
-        return sum(len(v[2]) for v in self._rows.values()) + sum(len(v[2]) for v in self._images.values())
+        return sum(len(v[2]) for d in (self._rows, self._images, self._batches) for v in d.values())
+
+
+def _same_shape(rows: list[dict], kind: str) -> list[list[int]]:
+    """Indices of ``rows`` grouped so that one column chunk can hold each group: the same fields and, for
+    strips, the same points per strip."""
+    groups: dict[tuple, list[int]] = {}
+    for i, r in enumerate(rows):
+        key = tuple(sorted(r)) + ((r["strips"].shape[1],) if kind == "strips" else ())
+        groups.setdefault(key, []).append(i)
+    return list(groups.values())
 
 
 def _indexes(frames: list, seconds: list) -> list:

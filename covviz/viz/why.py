@@ -20,7 +20,6 @@ from covviz.model.features import FEATURE_NAMES
 from covviz.viz import paths as P
 from covviz.viz.diagnostics import LikelihoodSlices
 from covviz.viz.palette import colormap_rgb
-from covviz.viz.series import SeriesBuffer
 
 __all__ = [
     "DIFF_RANGE",
@@ -29,10 +28,8 @@ __all__ = [
     "SERIES",
     "heatmap_image",
     "log_evidence",
-    "log_heatmap",
     "log_slices",
     "log_static",
-    "log_zoom",
     "zoom_image",
 ]
 
@@ -220,11 +217,6 @@ def zoom_image(patches: list[np.ndarray | None], gap: int = 2) -> np.ndarray:
     return np.concatenate(cols[:-1], axis=1)
 
 
-def log_zoom(series: SeriesBuffer, p: P.TrackerPaths, image: np.ndarray) -> None:
-    """The zoom patches of one frame, sent with the series (:meth:`SeriesBuffer.add_image`)."""
-    series.add_image(f"{p.zoom}/patches", image, "L")
-
-
 def _viridis(v: np.ndarray) -> np.ndarray:
     u = np.clip(np.nan_to_num(v), 0.0, 1.0)
     return colormap_rgb((u * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
@@ -246,11 +238,6 @@ def heatmap_image(template_log: np.ndarray, observed_log: np.ndarray) -> np.ndar
     c = _diverging((observed_log - template_log) / DIFF_RANGE[1])
     g = np.zeros((template_log.shape[0], int(GAP), 3), np.uint8)
     return np.concatenate([a, g, b, g, c], axis=1)
-
-
-def log_heatmap(series: SeriesBuffer, p: P.TrackerPaths, template_log, observed_log) -> None:
-    """The heatmaps of one frame, sent with the series; their draw order and filter are static (:func:`log_static`)."""
-    series.add_image(f"{p.heatmap}/image", heatmap_image(np.asarray(template_log), np.asarray(observed_log)), "RGB")
 
 
 def slices_note(every: int) -> str:
