@@ -72,28 +72,14 @@ class SeriesBuffer:
 
     def add(self, path: str, value: float) -> None:
         """One value of the series at ``path``, at the time of the last :meth:`at`."""
-        if self._frame is None:
-            raise RuntimeError("SeriesBuffer.at(frame, seconds) must come before add()")
-        if self._since is None:
-            self._since = self._clock()
-        frames, seconds, values = self._rows.setdefault(path, ([], [], []))
-        frames.append(self._frame)
-        seconds.append(self._seconds)
-        values.append(float(value))
+        self._hold(self._rows, path, float(value), "add")
 
     def add_image(self, path: str, image: np.ndarray, color_model: str) -> None:
         """One image of the entity at ``path`` (``(H, W)`` or ``(H, W, C)`` ``uint8``), at the time of the last
         :meth:`at`; sent with the series as ``rr.Image`` columns. What does not change per frame (draw
         order, filter, placement) is the caller's to log once, static."""
-        if self._frame is None:
-            raise RuntimeError("SeriesBuffer.at(frame, seconds) must come before add_image()")
-        if self._since is None:
-            self._since = self._clock()
         img = np.ascontiguousarray(image, dtype=np.uint8)
-        frames, seconds, images = self._images.setdefault((path, img.shape, color_model), ([], [], []))
-        frames.append(self._frame)
-        seconds.append(self._seconds)
-        images.append(img)
+        self._hold(self._images, (path, img.shape, color_model), img, "add_image")
 
     def add_points(self, path: str, positions: np.ndarray, colors: np.ndarray, radii: np.ndarray | None = None) -> None:
         """One frame's ``Points2D`` of the entity at ``path`` (``(n, 2)`` positions, ``(n, 4)`` uint8 colours,
@@ -102,7 +88,7 @@ class SeriesBuffer:
                   "colors": np.asarray(colors, np.uint8).reshape(-1, 4)}
         if radii is not None:
             fields["radii"] = np.asarray(radii, np.float32).reshape(-1)
-        self._add_batch(path, "points", fields)
+        self._hold(self._batches, (path, "points"), fields, "add_points")
 
     def add_strips(self, path: str, strips: np.ndarray, colors: np.ndarray) -> None:
         """One frame's ``LineStrips2D`` of ``(n, k, 2)`` strips of ``k`` points each (``n`` may be 0), with
@@ -110,18 +96,19 @@ class SeriesBuffer:
         strips = np.asarray(strips, np.float32)
         if strips.ndim != 3 or strips.shape[2] != 2:
             raise ValueError(f"strips must be (n, k, 2), got shape {strips.shape}")
-        self._add_batch(path, "strips", {"strips": strips,
-                                         "colors": np.asarray(colors, np.uint8).reshape(-1, 4)})
+        self._hold(self._batches, (path, "strips"),
+                   {"strips": strips, "colors": np.asarray(colors, np.uint8).reshape(-1, 4)}, "add_strips")
 
-    def _add_batch(self, path: str, kind: str, fields: dict) -> None:
+    def _hold(self, store: dict, key, item, caller: str) -> None:
+        """Keep ``item`` (a value, an image, a frame's batch) under ``key`` at the time of the last :meth:`at`."""
         if self._frame is None:
-            raise RuntimeError(f"SeriesBuffer.at(frame, seconds) must come before add_{kind}()")
+            raise RuntimeError(f"SeriesBuffer.at(frame, seconds) must come before {caller}()")
         if self._since is None:
             self._since = self._clock()
-        frames, seconds, rows = self._batches.setdefault((path, kind), ([], [], []))
+        frames, seconds, items = store.setdefault(key, ([], [], []))
         frames.append(self._frame)
         seconds.append(self._seconds)
-        rows.append(fields)
+        items.append(item)
 
     def tick(self) -> None:
         """A frame is done: flush once ``every`` frames are held or the oldest value is ``seconds`` old."""
