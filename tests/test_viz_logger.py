@@ -335,7 +335,7 @@ def test_an_empty_slices_view_says_when_it_is_drawn(run):
     assert after and after <= set(labels)
     text = slices_note(MDS_EVERY)
     assert all(list(np.ravel(labels[f])) == [text] for f in after)
-    assert text == "drawn on frames 1, 5, 9, … and around events"
+    assert text == "drawn on frames 1, 5, 9, … and around losses"
     assert mds_frames <= set(t[f"{p.slices}/note"]["Clear:is_recursive"])
 
 

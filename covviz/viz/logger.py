@@ -778,7 +778,7 @@ class RerunLogger(Observer):
     ) -> None:
         """The costly views (likelihood map and slices, template cloud), through the model.
 
-        Every k-th frame, and on every frame around events (``dense``).
+        Every k-th frame, and on every frame around each diagnosed loss (``dense``).
         """
         cfg = self.config
         i = int(frame.index)

@@ -243,7 +243,7 @@ def heatmap_image(template_log: np.ndarray, observed_log: np.ndarray) -> np.ndar
 def slices_note(every: int) -> str:
     """What the slices view says on the frames it has no curves (``every``: the likelihood map's period)."""
     when = f"frames 1, {1 + every}, {1 + 2 * every}, …" if every > 0 else "no regular frame"
-    return f"drawn on {when} and around events"  # short: the view is narrow
+    return f"drawn on {when} and around losses"  # short: the view is narrow
 
 
 def log_slices_note(rec: rr.RecordingStream, p: P.TrackerPaths, text: str) -> None:
