@@ -322,6 +322,23 @@ def test_alarms_of_a_changes_model_say_what_each_driver_usually_was(rng):
         assert "(usually " in describe_alarm(a) or not a["usual"]
 
 
+def test_frame_iou_leaves_frames_without_truth_unlabelled(rng):
+    """A ground-truth file shorter than the sequence (Football1: 74 rows, 81 frames): those frames are
+    no label (None), not IoU 0, which calibration would read as a lost track."""
+    from covviz.records import RunResult
+
+    n = 12
+    gt = np.tile([10.0, 10.0, 20.0, 20.0], (n, 1))
+    gt[8:] = np.nan
+    boxes = gt.copy()
+    boxes[8:] = [10.0, 10.0, 20.0, 20.0]
+    w = DriftWatch(_model_for(GENERIC_SIGNALS, rng))
+    res = RunResult("S", "kcf", None, boxes, np.zeros(n), gt)
+    rep = w.report(0, res)
+    assert rep["frame_iou"][:8] == [1.0] * 8
+    assert rep["frame_iou"][8:] == [None] * 4
+
+
 @pytest.mark.parametrize("tracker", ["manifold", "kcf"])
 def test_same_probabilities_without_ground_truth_and_same_boxes_without_the_detector(tracker, rng):
     from covviz.data.sequences import open_sequence

@@ -548,7 +548,9 @@ class DriftWatch(Observer):
         if result is not None and len(result.boxes):
             from covviz.metrics import iou
 
-            v = iou(np.asarray(result.boxes, dtype=np.float64), np.asarray(result.groundtruth, dtype=np.float64))
+            gt = np.asarray(result.groundtruth, dtype=np.float64)
+            v = iou(np.asarray(result.boxes, dtype=np.float64), gt)
+            v[~np.isfinite(gt).all(axis=1)] = np.nan  # no truth there: unlabelled (iou() says 0)
             out["frame_iou"] = [None if not np.isfinite(x) else round(float(x), 4) for x in v]
         return out
 
