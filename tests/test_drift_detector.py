@@ -16,7 +16,10 @@ from covviz.diagnosis.calibrate import (
     alarm_frames,
     choose_alarm,
     choose_design,
+    choose_fit,
+    episode_frames,
     fit_model,
+    fit_target,
     load_runs,
     losses_of,
     score_alarms,
@@ -226,6 +229,51 @@ def test_choose_design_prefers_changes_when_levels_do_not_carry_over(rng):
     assert held_out["changes"]["recall"] > held_out["levels"]["recall"] or (
         held_out["changes"]["precision"] > held_out["levels"]["precision"])
     assert choose_design(runs[:1], "manifold", SIGNALS) == ("changes", {})
+
+
+def test_episode_frames_are_the_frames_an_alarm_is_right_on():
+    iou = np.r_[np.full(40, 0.8), np.linspace(0.7, 0.05, 6), np.full(30, 0.02), np.full(24, 0.8)]
+    r = _run(iou)
+    w = episode_frames(r)
+    for i in range(len(iou)):  # 0-based frame i: an alarm there is right exactly inside the episode
+        assert (score_alarms([i], r)["tp"] == 1) == w[i]
+    keep, y = fit_target(r, "episodes")
+    lost_long = (iou < 0.5) & ~w
+    assert lost_long.any() and not keep[lost_long].any()  # the long-lost frames are left out of the fit
+    assert keep[iou >= 0.5].all() or not r.labelled[iou >= 0.5].all()
+    assert np.array_equal(y[keep], w[keep])
+    keep0, y0 = fit_target(r, "off_track")
+    assert np.array_equal(keep0, r.labelled) and np.array_equal(y0, r.off)
+    with pytest.raises(ValueError, match="fit target"):
+        fit_target(r, "offtrack")
+
+
+def _slide_runs(rng, n=260):
+    """Eight sequences: a signal that rises while the box slides off, another only once it is long lost."""
+    runs = []
+    a, b = SIGNALS.index("flow_gap"), SIGNALS.index("d_first")
+    for j in range(8):
+        lost = 100 + 7 * j
+        iou = np.r_[np.full(lost - 8, 0.8), np.linspace(0.6, 0.12, 8), np.full(n - lost, 0.02)]
+        rows = rng.normal(0, 0.3, (n, len(SIGNALS)))
+        rows[lost - 10: lost + 2, a] += 3.0  # the slide: from just before the drift to the loss
+        rows[lost + 12:, b] += 3.0  # the look of the background, long after the loss
+        runs.append(_run(iou, rows, seq=f"S{j}"))
+    return runs
+
+
+def test_choose_fit_finds_the_episodes_when_the_lost_frames_teach_the_wrong_signal(rng):
+    runs = _slide_runs(rng)
+    sig = ("flow_gap", "d_first")
+    design, target, held = choose_fit(runs, "manifold", sig)
+    assert target == "episodes"
+    assert held[design, "episodes"]["recall"] > held[design, "off_track"]["recall"]
+    m = fit_model(runs, "manifold", sig, design="levels", target="episodes")
+    assert m.fit["target"] == "episodes" and m.fit["positive_frames"] > 0
+    m_off = fit_model(runs, "manifold", sig, design="levels", target="off_track")
+    # the episodes' model leans on the slide's signal, the off-track one on the lost box's look
+    assert m.coef[sig.index("flow_gap")] > m.coef[sig.index("d_first")]
+    assert m_off.coef[sig.index("d_first")] > m_off.coef[sig.index("flow_gap")]
 
 
 def test_fit_model_refuses_runs_without_losses(rng):

@@ -16,9 +16,13 @@ examples:
   covviz calibrate runs/bench --seeds 0,1,2 --all-families covviz/diagnosis/models   # the shipped models
   covviz track clip.mp4 --box 120,80,40,60 --detector my-detector.json
 
-The runs need ground truth (a frame is off track when its IoU is below 0.5) and the
-per-frame signals that covviz bench saves (diagnosis.signals); no tracker is re-run.
-The model is a logistic regression on the signals, in one of two feature designs:
+The runs need ground truth and the per-frame signals that covviz bench saves
+(diagnosis.signals); no tracker is re-run. The model learns the drift episodes: each
+loss's frames (a loss: IoU below 0.1 after a frame at 0.5 or more) from 10 before its
+drift began to 5 after it, against the frames on track (IoU >= 0.5), frames long lost
+left out; or every frame below 0.5 (the first design). --target auto picks the one
+whose alarms hold up best on sequences held out in turn, with the design.
+It is a logistic regression on the signals, in one of two feature designs:
 their levels and short history, or their changes (each signal's robust z-score against
 its own last 30 frames, which carries over between scenes). --design auto picks the
 one whose alarms hold up best on sequences held out in turn; the alarm threshold and
@@ -68,6 +72,11 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=_seeds, metavar="LIST", help="only these seeds of stochastic trackers, e.g. 0-2")
     p.add_argument("--design", choices=("auto", "levels", "changes"), default="auto",
                    help="feature design (default auto: chosen by cross-validation over the runs' sequences)")
+    p.add_argument("--target", choices=("auto", "episodes", "off-track"), default="auto",
+                   help="what the model learns to find: the drift episodes, each loss's frames from 10 before its "
+                        "drift began to 5 after it, against the frames on track (what an alarm is scored on), or "
+                        "every frame off track (IoU < 0.5; long-lost frames included); default auto: chosen with "
+                        "the design, by cross-validation over the runs' sequences")
     p.set_defaults(func=cmd_calibrate)
     return p
 
@@ -82,19 +91,23 @@ def cmd_calibrate(args) -> int:
     runs = load_runs(args.bench_dir, trackers, args.seeds)
     info = {"id": f"{args.bench_dir.name}"}
     design = None if args.design == "auto" else args.design
+    target = None if args.target == "auto" else args.target.replace("-", "_")
     if args.all_families is not None:
-        for fam, m in fit_families(runs, info, design).items():
+        for fam, m in fit_families(runs, info, design, target).items():
             path = m.save(args.all_families / f"{fam}.json")
             print(f"{fam}: {_describe(m)} -> {path}")
         return 0
     fams = {family_of(r.tracker) for r in runs}
     fam = fams.pop() if len(fams) == 1 else "generic"
-    m = fit_design(runs, fam, fit_info=info) if design is None else fit_model(runs, fam, fit_info=info, design=design)
+    m = (fit_design(runs, fam, fit_info=info, target=target) if design is None
+         else fit_model(runs, fam, fit_info=info, design=design, target=target or "episodes"))
     print(f"{m.family}: {_describe(m)} -> {m.save(args.out)}")
     return 0
 
 
 def _describe(m) -> str:
     f = m.fit
-    return (f"{m.design} design, {f['runs']} runs, {f['frames']} frames ({f['off_track_frames']} off track), {f['losses']} losses; "
+    found = "in drift episodes" if f.get("target", "off_track") == "episodes" else "off track"
+    return (f"{m.design} design, {f['runs']} runs, {f['frames']} frames ({f['positive_frames']} {found}), "
+            f"{f['losses']} losses; "
             f"alarm at p >= {m.alarm.threshold:.3f}, released below {m.alarm.release:.3f}")

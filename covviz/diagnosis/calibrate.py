@@ -9,6 +9,20 @@ The alarm rule (threshold, release, cooldown) of the model and of every single
 signal used as a baseline is chosen by :func:`choose_alarm` — the same rule for
 all — on the training runs only.
 
+What the model is fitted to find (:data:`TARGETS`): the frames of the *drift
+episodes* — each loss's window, from :data:`MATCH_BEFORE` frames before its drift
+began to :data:`MATCH_AFTER` after it, the frames an alarm is scored right on —
+against the frames on track outside them, the frames off track outside every
+window (the box long lost, sitting on the background) left out of the fit; or every
+off-track frame (``"off_track"``: IoU below :data:`OFF_TRACK_IOU`, the first
+design), where the model learns mostly what a lost box looks like (four fifths of
+the default tracker's off-track frames on the dev runs) and its alarms come at or
+after the loss. Which of the two a family's model is fitted to find is chosen with
+its feature design, by held-out alarms on the training sequences
+(:func:`choose_fit`). Leave-one-sequence-out on the default tracker's dev runs: every
+fold on the off-track frames, recall 61% at precision 51%; on the episodes, 75% at
+52%; chosen inside each fold, 65% at 49% (``docs/tuning.md``, ``docs/results.md``).
+
 Events (as ``covviz.diagnosis.events`` defines them): a *loss* is an IoU below
 0.1 after a frame at 0.5 or more; its drift began where
 :func:`covviz.diagnosis.events.drift_onset` says. An alarm is *right* when it
@@ -43,12 +57,17 @@ log = logging.getLogger("covviz")
 
 __all__ = [
     "BASELINES",
+    "FIT_TARGET",
     "OFF_TRACK_IOU",
+    "TARGETS",
     "Run",
     "alarm_frames",
     "choose_alarm",
     "choose_design",
+    "choose_fit",
+    "episode_frames",
     "fit_model",
+    "fit_target",
     "load_runs",
     "losses_of",
     "score_alarms",
@@ -60,6 +79,9 @@ OFF_TRACK_IOU = 0.5
 MATCH_BEFORE = 10
 #: ... to this many after the loss.
 MATCH_AFTER = 5
+#: What the model is fitted to find (module docstring): the drift episodes, or every off-track frame.
+TARGETS = ("episodes", "off_track")
+FIT_TARGET = "episodes"
 #: Regularisation of the logistic regression (inverse strength), fixed a priori.
 C_REG = 1.0
 #: Quantile levels of the training scores tried as thresholds, and release offsets below them.
@@ -68,7 +90,9 @@ RELEASE_OFFSETS = (0.0, 0.1, 0.3)
 #: The rule: the most recall at a training precision of at least this; if none reaches it, the best F1.
 MIN_PRECISION = 0.5
 #: Single signals scored as baselines: name -> (signal, sign); the score is sign * signal (high = trouble).
-BASELINES = {"FB error": ("fb_error", 1.0), "PSR": ("psr", -1.0), "ESS": ("ess", -1.0), "distance z": ("dmin_z", 1.0)}
+#: The issue's four, and the flow gap (the strongest single signal on the dev runs).
+BASELINES = {"FB error": ("fb_error", 1.0), "PSR": ("psr", -1.0), "ESS": ("ess", -1.0), "distance z": ("dmin_z", 1.0),
+             "flow gap": ("flow_gap", 1.0)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -205,6 +229,25 @@ def score_alarms(alarms, run: Run) -> dict:
             "on_track": on}
 
 
+def episode_frames(run: Run) -> np.ndarray:
+    """Boolean per frame: inside some loss's matching window (where an alarm is right; 0-based frames)."""
+    w = np.zeros(len(run.iou), dtype=bool)
+    for d, lost in run.losses:
+        w[max(d - MATCH_BEFORE, 1) - 1: lost + MATCH_AFTER] = True
+    return w
+
+
+def fit_target(run: Run, target: str = FIT_TARGET) -> tuple[np.ndarray, np.ndarray]:
+    """The frames a model is fitted on and their labels (1: what it should find), for ``target``."""
+    if target not in TARGETS:
+        raise ValueError(f"unknown fit target {target!r}; use one of {', '.join(TARGETS)}")
+    if target == "off_track":
+        return run.labelled, run.off
+    w = episode_frames(run)
+    keep = run.labelled & (w | (run.iou >= OFF_TRACK_IOU))
+    return keep, w
+
+
 def _pool(counts: list[dict]) -> dict:
     out = {k: sum(c[k] for c in counts) for k in ("alarms", "tp", "fp", "losses", "found", "on_track")}
     out["leads"] = [x for c in counts for x in c["leads"]]
@@ -263,67 +306,84 @@ def _design(runs: list[Run], signals, design: str = "levels") -> list[np.ndarray
     return [history_features(r.rows[:, cols], signals, design) for r in runs]
 
 
-def choose_design(runs: list[Run], family: str, signals, feats: dict[str, list[np.ndarray]] | None = None
-                  ) -> tuple[str, dict]:
-    """The feature design (:data:`~covviz.diagnosis.detector.DESIGNS`) that carries over best to unseen sequences.
+def choose_design(runs: list[Run], family: str, signals, feats: dict[str, list[np.ndarray]] | None = None,
+                  target: str = FIT_TARGET) -> tuple[str, dict]:
+    """The feature design (:data:`~covviz.diagnosis.detector.DESIGNS`) that carries over best to unseen
+    sequences, for models fitted to find ``target``: :func:`choose_fit` with that target only."""
+    design, _, scores = choose_fit(runs, family, signals, feats, (target,))
+    return design, {d: v for (d, _), v in scores.items()}
 
-    Leave-one-sequence-out on ``runs`` only: for each of their sequences a model of each design is
-    fitted, and its alarm rule chosen, on the other sequences' runs, and the sequence's runs are scored.
-    The design whose pooled held-out alarms rank first by the alarm rule's own order
-    (:func:`choose_alarm`) wins; ties go to ``changes``. (Four groups of sequences instead of one each
-    chose less steadily: on the paper's likelihood the design flipped from fold to fold of the outer
-    evaluation, and its alarms were worse than either design's alone.)
+
+def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.ndarray]] | None = None,
+               targets=TARGETS) -> tuple[str, str, dict]:
+    """The feature design and the fit target (:data:`TARGETS`) whose models carry over best to unseen sequences.
+
+    Leave-one-sequence-out on ``runs`` only: for each of their sequences a model of each design and
+    target is fitted, and its alarm rule chosen, on the other sequences' runs, and the sequence's runs
+    are scored. The pair whose pooled held-out alarms rank first by the alarm rule's own order
+    (:func:`choose_alarm`) wins; ties go to ``changes``, then to :data:`FIT_TARGET`. (Four groups of
+    sequences instead of one each chose less steadily: on the paper's likelihood the design flipped
+    from fold to fold of the outer evaluation, and its alarms were worse than either design's alone.)
     With a single sequence nothing can be held out, and ``changes`` (the design made to carry over
-    between scenes) is used. Returns the design and each design's held-out precision and recall.
+    between scenes) is used with the first of ``targets``. Returns the design, the target and each
+    pair's held-out precision and recall, keyed ``(design, target)``.
     """
+    targets = tuple(targets)
     seqs = sorted({r.sequence for r in runs})
     if len(seqs) < 2:
-        return "changes", {}
+        return "changes", targets[0], {}
     feats = feats or {d: _design(runs, signals, d) for d in DESIGNS}
     keys, scores = {}, {}
     for d in DESIGNS:
-        counts = []
-        for q in seqs:
-            tr = [i for i, r in enumerate(runs) if r.sequence != q]
-            te = [i for i, r in enumerate(runs) if r.sequence == q]
-            try:
-                m = fit_model([runs[i] for i in tr], family, signals, [feats[d][i] for i in tr], design=d)
-            except InputError:
+        for t in targets:
+            counts = []
+            for q in seqs:
+                tr = [i for i, r in enumerate(runs) if r.sequence != q]
+                te = [i for i, r in enumerate(runs) if r.sequence == q]
+                try:
+                    m = fit_model([runs[i] for i in tr], family, signals, [feats[d][i] for i in tr], design=d,
+                                  target=t)
+                except InputError:
+                    continue
+                counts += [score_alarms(alarm_frames(m.probability(feats[d][i]), m.alarm), runs[i]) for i in te]
+            if not counts:
                 continue
-            counts += [score_alarms(alarm_frames(m.probability(feats[d][i]), m.alarm), runs[i]) for i in te]
-        if not counts:
-            continue
-        c = _pool(counts)
-        keys[d] = (*_rule_key(c), d == "changes")
-        p, rc = _pr(c)
-        scores[d] = {"precision": round(p, 4) if np.isfinite(p) else None,
-                     "recall": round(rc, 4) if np.isfinite(rc) else None}
+            c = _pool(counts)
+            keys[d, t] = (*_rule_key(c), d == "changes", t == FIT_TARGET)
+            p, rc = _pr(c)
+            scores[d, t] = {"precision": round(p, 4) if np.isfinite(p) else None,
+                            "recall": round(rc, 4) if np.isfinite(rc) else None}
     if not keys:
-        return "changes", {}
-    return max(keys, key=keys.get), scores
+        return "changes", targets[0], {}
+    d, t = max(keys, key=keys.get)
+    return d, t, scores
 
 
 def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray] | None = None,
-              fit_info: dict | None = None, design: str = "levels") -> DriftModel:
-    """A logistic drift model fitted on ``runs`` (off track: IoU < 0.5), with its alarm rule chosen on them too.
+              fit_info: dict | None = None, design: str = "levels", target: str = FIT_TARGET) -> DriftModel:
+    """A logistic drift model fitted on ``runs`` to find ``target`` (:func:`fit_target`), with its alarm
+    rule chosen on them too.
 
     ``feats``, if given, are the runs' features of ``design`` (:func:`_design`).
 
     Raises
     ------
     InputError
-        If the runs have no off-track or no on-track frame (nothing to learn from).
+        If the runs have nothing to learn from: no loss (``episodes``) or no off-track frame
+        (``off_track``), or no frame on track.
     """
     from sklearn import __version__ as skv
     from sklearn.linear_model import LogisticRegression
 
     signals = tuple(signals or signals_for(sorted({r.tracker for r in runs})))
     feats = feats if feats is not None else _design(runs, signals, design)
-    X = np.concatenate([f[r.labelled] for f, r in zip(feats, runs)])
-    y = np.concatenate([r.off[r.labelled] for r in runs])
+    parts = [fit_target(r, target) for r in runs]
+    X = np.concatenate([f[m] for f, (m, _) in zip(feats, parts)])
+    y = np.concatenate([lab[m] for m, lab in parts])
     if y.all() or not y.any():
-        raise InputError("the runs have " + ("no frame on track" if y.all() else "no frame off track (IoU < 0.5)")
-                         + ": nothing to calibrate on; add runs with and without losses")
+        missing = "no frame on track" if y.all() else (
+            "no frame off track (IoU < 0.5)" if target == "off_track" else "no loss (IoU < 0.1 after 0.5), no frame off track")
+        raise InputError(f"the runs have {missing}: nothing to calibrate on; add runs with and without losses")
     import warnings
 
     with warnings.catch_warnings():
@@ -342,13 +402,14 @@ def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray
     rule = choose_alarm(probs, runs)
     info = {
         "off_track_iou": OFF_TRACK_IOU,
+        "target": target,
         "C": C_REG,
         "runs": len(runs),
         "sequences": sorted({r.sequence for r in runs}),
         "trackers": sorted({r.tracker for r in runs}),
         "seeds": sorted({r.seed for r in runs if r.seed is not None}),
         "frames": len(y),
-        "off_track_frames": int(y.sum()),
+        "positive_frames": int(y.sum()),
         "losses": int(sum(len(r.losses) for r in runs)),
         "sklearn": skv,
         **(fit_info or {}),
@@ -363,17 +424,19 @@ def family_runs(runs: list[Run], family: str) -> list[Run]:
     return [r for r in runs if family_of(r.tracker) == family]
 
 
-def fit_design(runs: list[Run], family: str, signals=None, fit_info: dict | None = None) -> DriftModel:
-    """A model of the design :func:`choose_design` picks on ``runs``, fitted on all of them."""
+def fit_design(runs: list[Run], family: str, signals=None, fit_info: dict | None = None,
+               target: str | None = None) -> DriftModel:
+    """A model of the design (and, with ``target`` None, the fit target) :func:`choose_fit` picks on
+    ``runs``, fitted on all of them."""
     signals = tuple(signals or signals_for(sorted({r.tracker for r in runs})))
     feats = {d: _design(runs, signals, d) for d in DESIGNS}
-    design, held_out = choose_design(runs, family, signals, feats)
-    info = {**(fit_info or {}), "design_choice": {"held_out": held_out}}
-    return fit_model(runs, family, signals, feats[design], info, design)
+    design, target, held_out = choose_fit(runs, family, signals, feats, TARGETS if target is None else (target,))
+    info = {**(fit_info or {}), "design_choice": {"held_out": {f"{d} {t}": v for (d, t), v in held_out.items()}}}
+    return fit_model(runs, family, signals, feats[design], info, design, target)
 
 
-def fit_families(runs: list[Run], fit_info: dict | None = None, design: str | None = None
-                 ) -> dict[str, DriftModel]:
+def fit_families(runs: list[Run], fit_info: dict | None = None, design: str | None = None,
+                 target: str | None = None) -> dict[str, DriftModel]:
     """One model per family present in ``runs``, plus the generic fallback (generic signals, every run).
 
     Each family's feature design is ``design``, or (None) chosen on its own runs (:func:`choose_design`).
@@ -383,40 +446,43 @@ def fit_families(runs: list[Run], fit_info: dict | None = None, design: str | No
         rs = family_runs(runs, fam)
         if rs:
             sig = GENERIC_SIGNALS if fam == "generic" else None
-            out[fam] = (fit_design(rs, fam, sig, fit_info) if design is None
-                        else fit_model(rs, fam, sig, fit_info=fit_info, design=design))
+            out[fam] = (fit_design(rs, fam, sig, fit_info, target) if design is None
+                        else fit_model(rs, fam, sig, fit_info=fit_info, design=design, target=target or FIT_TARGET))
     return out
 
 
 # --------------------------------------------------------------------------- #
 # leave-one-sequence-out evaluation
 # --------------------------------------------------------------------------- #
-def loso(runs: list[Run], tracker: str, family: str | None = None) -> dict:
+def loso(runs: list[Run], tracker: str, family: str | None = None, target: str | None = None) -> dict:
     """Leave-one-sequence-out scores of ``tracker``: the model of its family and each baseline.
 
-    For each sequence, the model's feature design is chosen (:func:`choose_design`, nested inside the
-    fold), the model fitted and its alarm rule chosen, on the family's runs of the other sequences only,
-    and so is each baseline's threshold; the held-out sequence's runs of ``tracker`` are then scored.
-    Returns, per method (``model`` and each of :data:`BASELINES`), the held-out scores and alarm counts of
-    every run, keyed by sequence, and under ``"designs"`` the design each fold chose.
+    For each sequence, the model's feature design and (``target`` None) its fit target are chosen
+    (:func:`choose_fit`, nested inside the fold), the model fitted and its alarm rule chosen, on the
+    family's runs of the other sequences only, and so is each baseline's threshold; the held-out
+    sequence's runs of ``tracker`` are then scored. Returns, per method (``model`` and each of
+    :data:`BASELINES`), the held-out scores and alarm counts of every run, keyed by sequence, and under
+    ``"designs"`` and ``"targets"`` what each fold chose.
     """
     family = family or family_of(tracker)
     pool = family_runs(runs, family)
     signals = signals_for(sorted({r.tracker for r in pool}))
     feats = {d: dict(zip(map(id, pool), _design(pool, signals, d))) for d in DESIGNS}
     seqs = sorted({r.sequence for r in pool if r.tracker == tracker})
-    out: dict = {"model": {}, **{b: {} for b in BASELINES}, "designs": {}}
+    out: dict = {"model": {}, **{b: {} for b in BASELINES}, "designs": {}, "targets": {}}
     for q in seqs:
         train = [r for r in pool if r.sequence != q]
         test = [r for r in pool if r.sequence == q and r.tracker == tracker]
         if not train or not test:
             continue
-        design, _ = choose_design(train, family, signals, {d: [feats[d][id(r)] for r in train] for d in DESIGNS})
+        design, tgt, _ = choose_fit(train, family, signals, {d: [feats[d][id(r)] for r in train] for d in DESIGNS},
+                                    TARGETS if target is None else (target,))
         try:
-            m = fit_model(train, family, signals, [feats[design][id(r)] for r in train], design=design)
+            m = fit_model(train, family, signals, [feats[design][id(r)] for r in train], design=design, target=tgt)
         except InputError:
             continue
         out["designs"][q] = design
+        out["targets"][q] = tgt
         out["model"][q] = [(p, score_alarms(alarm_frames(p, m.alarm), r), r)
                            for r in test for p in [m.probability(feats[design][id(r)])]]
         for name, (sig, sign) in BASELINES.items():

@@ -17,8 +17,10 @@ rule (threshold, release, cooldown). Two designs:
   different levels: a small low-contrast car keeps a high ESS while on track, which
   the ``levels`` model of the default tracker read as a loss (160 false alarms on
   Car1 held out). ``covviz calibrate`` chooses the design per family by
-  cross-validation over sequences on the runs it fits
-  (:func:`covviz.diagnosis.calibrate.choose_design`). Shipped
+  cross-validation over sequences on the runs it fits, with what the model is
+  fitted to find — the drift episodes (each loss's frames from 10 before its drift
+  began to 5 after it, against the frames on track) or every off-track frame
+  (:func:`covviz.diagnosis.calibrate.choose_fit`). Shipped
 models, one per tracker family with a generic fallback, are package data under
 ``covviz/diagnosis/models/`` (:func:`shipped_model`); ``covviz calibrate``
 (:mod:`covviz.diagnosis.calibrate`) writes new ones.
