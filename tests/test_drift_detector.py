@@ -440,7 +440,12 @@ def test_calibrate_command_writes_a_model_the_detector_option_reads(tmp_path, rn
     out = tmp_path / "det.json"
     assert main(["calibrate", str(tmp_path / "bench"), "--out", str(out)]) == 0
     m = DriftModel.load(out)
-    assert m.family == "manifold" and m.fit["runs"] == 3
+    assert m.family == "manifold" and m.fit["runs"] == 3 and m.fit["target"] in ("episodes", "off_track")
+    for design, target in (("levels", "off-track"), ("changes", "episodes")):
+        assert main(["calibrate", str(tmp_path / "bench"), "--out", str(out), "--design", design,
+                     "--target", target]) == 0
+        m = DriftModel.load(out)
+        assert (m.design, m.fit["target"]) == (design, target.replace("-", "_"))
     assert main(["calibrate", str(tmp_path / "bench"), "--all-families", str(tmp_path / "fam")]) == 0
     assert sorted(p.name for p in (tmp_path / "fam").iterdir()) == ["generic.json", "manifold.json"]
     assert main(["calibrate", str(tmp_path / "nothing"), "--out", str(out)]) == 2

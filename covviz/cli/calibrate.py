@@ -82,7 +82,7 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
 
 
 def cmd_calibrate(args) -> int:
-    from covviz.diagnosis.calibrate import fit_design, fit_families, fit_model, load_runs
+    from covviz.diagnosis.calibrate import fit_design, fit_families, load_runs
     from covviz.diagnosis.detector import family_of
 
     if (args.out is None) == (args.all_families is None):
@@ -99,8 +99,7 @@ def cmd_calibrate(args) -> int:
         return 0
     fams = {family_of(r.tracker) for r in runs}
     fam = fams.pop() if len(fams) == 1 else "generic"
-    m = (fit_design(runs, fam, fit_info=info, target=target) if design is None
-         else fit_model(runs, fam, fit_info=info, design=design, target=target or "episodes"))
+    m = fit_design(runs, fam, fit_info=info, target=target, design=design)
     print(f"{m.family}: {_describe(m)} -> {m.save(args.out)}")
     return 0
 

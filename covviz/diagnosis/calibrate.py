@@ -315,7 +315,7 @@ def choose_design(runs: list[Run], family: str, signals, feats: dict[str, list[n
 
 
 def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.ndarray]] | None = None,
-               targets=TARGETS) -> tuple[str, str, dict]:
+               targets=TARGETS, designs=DESIGNS) -> tuple[str, str, dict]:
     """The feature design and the fit target (:data:`TARGETS`) whose models carry over best to unseen sequences.
 
     Leave-one-sequence-out on ``runs`` only: for each of their sequences a model of each design and
@@ -328,13 +328,13 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
     between scenes) is used with the first of ``targets``. Returns the design, the target and each
     pair's held-out precision and recall, keyed ``(design, target)``.
     """
-    targets = tuple(targets)
+    targets, designs = tuple(targets), tuple(designs)
     seqs = sorted({r.sequence for r in runs})
     if len(seqs) < 2:
-        return "changes", targets[0], {}
-    feats = feats or {d: _design(runs, signals, d) for d in DESIGNS}
+        return ("changes" if "changes" in designs else designs[0]), targets[0], {}
+    feats = feats or {d: _design(runs, signals, d) for d in designs}
     keys, scores = {}, {}
-    for d in DESIGNS:
+    for d in designs:
         for t in targets:
             counts = []
             for q in seqs:
@@ -354,7 +354,7 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
             scores[d, t] = {"precision": round(p, 4) if np.isfinite(p) else None,
                             "recall": round(rc, 4) if np.isfinite(rc) else None}
     if not keys:
-        return "changes", targets[0], {}
+        return ("changes" if "changes" in designs else designs[0]), targets[0], {}
     d, t = max(keys, key=keys.get)
     return d, t, scores
 
@@ -425,12 +425,17 @@ def family_runs(runs: list[Run], family: str) -> list[Run]:
 
 
 def fit_design(runs: list[Run], family: str, signals=None, fit_info: dict | None = None,
-               target: str | None = None) -> DriftModel:
-    """A model of the design (and, with ``target`` None, the fit target) :func:`choose_fit` picks on
-    ``runs``, fitted on all of them."""
+               target: str | None = None, design: str | None = None) -> DriftModel:
+    """A model of the design and fit target :func:`choose_fit` picks on ``runs`` (those given are kept),
+    fitted on all of them."""
     signals = tuple(signals or signals_for(sorted({r.tracker for r in runs})))
-    feats = {d: _design(runs, signals, d) for d in DESIGNS}
-    design, target, held_out = choose_fit(runs, family, signals, feats, TARGETS if target is None else (target,))
+    designs = DESIGNS if design is None else (design,)
+    targets = TARGETS if target is None else (target,)
+    feats = {d: _design(runs, signals, d) for d in designs}
+    if len(designs) == len(targets) == 1:  # nothing to choose
+        design, target, held_out = designs[0], targets[0], {}
+    else:
+        design, target, held_out = choose_fit(runs, family, signals, feats, targets, designs)
     info = {**(fit_info or {}), "design_choice": {"held_out": {f"{d} {t}": v for (d, t), v in held_out.items()}}}
     return fit_model(runs, family, signals, feats[design], info, design, target)
 
@@ -439,15 +444,15 @@ def fit_families(runs: list[Run], fit_info: dict | None = None, design: str | No
                  target: str | None = None) -> dict[str, DriftModel]:
     """One model per family present in ``runs``, plus the generic fallback (generic signals, every run).
 
-    Each family's feature design is ``design``, or (None) chosen on its own runs (:func:`choose_design`).
+    Each family's feature design and fit target are ``design`` and ``target``, or (None) chosen on its
+    own runs (:func:`choose_fit`).
     """
     out = {}
     for fam in [*FAMILIES, "generic"]:
         rs = family_runs(runs, fam)
         if rs:
             sig = GENERIC_SIGNALS if fam == "generic" else None
-            out[fam] = (fit_design(rs, fam, sig, fit_info, target) if design is None
-                        else fit_model(rs, fam, sig, fit_info=fit_info, design=design, target=target or FIT_TARGET))
+            out[fam] = fit_design(rs, fam, sig, fit_info, target, design)
     return out
 
 
