@@ -278,8 +278,10 @@ def test_choose_fit_finds_the_episodes_when_the_lost_frames_teach_the_wrong_sign
 
 def test_fit_model_refuses_runs_without_losses(rng):
     r = _run(np.full(50, 0.9), rng.normal(0, 1, (50, len(SIGNALS))))
-    with pytest.raises(InputError, match="off track"):
+    with pytest.raises(InputError, match="no loss .*nothing to calibrate"):
         fit_model([r], "manifold")
+    with pytest.raises(InputError, match="no frame off track .*nothing to calibrate"):
+        fit_model([r], "manifold", target="off_track")
 
 
 def test_bad_detector_files_are_one_line_input_errors(tmp_path):

@@ -382,7 +382,8 @@ def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray
     y = np.concatenate([lab[m] for m, lab in parts])
     if y.all() or not y.any():
         missing = "no frame on track" if y.all() else (
-            "no frame off track (IoU < 0.5)" if target == "off_track" else "no loss (IoU < 0.1 after 0.5), no frame off track")
+            "no frame off track (IoU < 0.5)" if target == "off_track"
+            else "no loss (no fall below IoU 0.1 after a frame at 0.5 or more)")
         raise InputError(f"the runs have {missing}: nothing to calibrate on; add runs with and without losses")
     import warnings
 
