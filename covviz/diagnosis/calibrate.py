@@ -206,10 +206,15 @@ def alarm_frames(scores, rule: Hysteresis) -> np.ndarray:
     return np.asarray(out, dtype=int)
 
 
+def loss_windows(run: Run) -> list[tuple[int, int, int]]:
+    """``(first, last, lost at)`` of each loss: the 1-based frames (inclusive) where an alarm is right."""
+    return [(d - MATCH_BEFORE, lost + MATCH_AFTER, lost) for d, lost in run.losses]
+
+
 def score_alarms(alarms, run: Run) -> dict:
     """Event-level counts of one run's alarms (0-based frames) against its losses (module docstring)."""
     frames = np.asarray(alarms, dtype=int) + 1
-    windows = [(d - MATCH_BEFORE, lost + MATCH_AFTER, lost) for d, lost in run.losses]
+    windows = loss_windows(run)
     tp = fp = 0
     for f in frames:
         if any(a <= f <= b for a, b, _ in windows):
@@ -232,8 +237,8 @@ def score_alarms(alarms, run: Run) -> dict:
 def episode_frames(run: Run) -> np.ndarray:
     """Boolean per frame: inside some loss's matching window (where an alarm is right; 0-based frames)."""
     w = np.zeros(len(run.iou), dtype=bool)
-    for d, lost in run.losses:
-        w[max(d - MATCH_BEFORE, 1) - 1: lost + MATCH_AFTER] = True
+    for first, last, _ in loss_windows(run):
+        w[max(first, 1) - 1: last] = True
     return w
 
 
@@ -329,9 +334,10 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
     pair's held-out precision and recall, keyed ``(design, target)``.
     """
     targets, designs = tuple(targets), tuple(designs)
+    fallback = ("changes" if "changes" in designs else designs[0]), targets[0], {}
     seqs = sorted({r.sequence for r in runs})
     if len(seqs) < 2:
-        return ("changes" if "changes" in designs else designs[0]), targets[0], {}
+        return fallback
     feats = feats or {d: _design(runs, signals, d) for d in designs}
     keys, scores = {}, {}
     for d in designs:
@@ -354,7 +360,7 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
             scores[d, t] = {"precision": round(p, 4) if np.isfinite(p) else None,
                             "recall": round(rc, 4) if np.isfinite(rc) else None}
     if not keys:
-        return ("changes" if "changes" in designs else designs[0]), targets[0], {}
+        return fallback
     d, t = max(keys, key=keys.get)
     return d, t, scores
 

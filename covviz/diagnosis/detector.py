@@ -548,11 +548,11 @@ class DriftWatch(Observer):
         out["detector"] = ({"family": w.model.family, "design": w.model.design, "fit": w.model.fit.get("id", "")}
                            if w.model else None)
         if result is not None and len(result.boxes):
-            from covviz.metrics import iou
+            from covviz.metrics import iou, valid_rows
 
             gt = np.asarray(result.groundtruth, dtype=np.float64)
             v = iou(np.asarray(result.boxes, dtype=np.float64), gt)
-            v[~np.isfinite(gt).all(axis=1)] = np.nan  # no truth there: unlabelled (iou() says 0)
+            v[~valid_rows(gt)] = np.nan  # no truth to score there (as evaluate()): unlabelled, not IoU 0
             out["frame_iou"] = [None if not np.isfinite(x) else round(float(x), 4) for x in v]
         return out
 
