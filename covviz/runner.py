@@ -51,6 +51,7 @@ from covviz.data.frames import Frame, Sequence
 from covviz.data.prefetch import AHEAD, Prefetcher
 from covviz.errors import WriteError
 from covviz.records import FrameRecord, RunResult
+from covviz.signals import check as check_signals
 from covviz.signals import shielded
 from covviz.trackers.base import TrackerInfo, tracker_info
 
@@ -441,6 +442,7 @@ def run_many(
     try:
         bar = _progress(n, f"{sequence.name}", progress)
         for i in range(n):
+            check_signals()  # a Ctrl-C that C code swallowed (covviz.signals) stops here
             frame = next(frames)
             if frame.gt is not None:
                 gt[i] = frame.gt

@@ -206,6 +206,67 @@ def test_signals_in_process_first_raises_later_ones_are_only_reported(caplog):
             signal.signal(s, h)
 
 
+def test_a_signal_swallowed_by_a_ctypes_callback_still_stops_the_run(capfd):
+    """A Ctrl-C landing while C code calls back into Python (numba compiling: llvmlite's object-cache
+    callback) raised inside the callback, which ctypes swallows ("Exception ignored"): a bench went
+    on to the end as if no Ctrl-C had come. It is now kept, printed nowhere, and raised at the next
+    check, or at the end of the command."""
+    import ctypes
+
+    from covviz.signals import Interrupted, check, stop_signals
+
+    def body():
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(1000):  # the handler runs between bytecodes, inside the callback
+            pass
+
+    callback = ctypes.CFUNCTYPE(None)(body)
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with pytest.raises(Interrupted) as exc, stop_signals():
+            callback()  # ctypes swallows the exception raised in there
+            went_on = True
+            check()
+            raise AssertionError("check() did not raise the swallowed signal")
+        assert went_on and exc.value.signum == signal.SIGINT
+        with pytest.raises(Interrupted), stop_signals():  # never checked: raised as the command ends
+            callback()
+            ended = True
+        assert ended
+        assert "Exception ignored" not in capfd.readouterr().err
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
+
+
+def test_a_signal_landing_in_llvmlite_is_raised_once_python_is_out_of_it():
+    """Raised inside llvmlite's object-cache callback it would break numba's compile ("no compiled
+    object yet"): it is sent again a moment later and raised in ordinary code."""
+    from covviz.signals import Interrupted, stop_signals
+
+    where = {}
+    code = compile(
+        "def inside():\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    for _ in range(100000):\n"
+        "        pass\n"
+        "    where['left'] = True\n",
+        f"{os.sep}site-packages{os.sep}llvmlite{os.sep}binding{os.sep}fake.py", "exec",
+    )
+    scope = {"os": os, "signal": signal, "where": where}
+    exec(code, scope)  # noqa: S102 - a function whose frames say llvmlite, as its callbacks do
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with pytest.raises(Interrupted), stop_signals():
+            scope["inside"]()
+            assert where["left"]  # not raised in there
+            time.sleep(5)  # the signal comes again here
+            raise AssertionError("the signal was not sent again")
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
+
+
 def test_stop_signals_restores_the_handlers_when_no_signal_came():
     from covviz.signals import stop_signals
 

@@ -657,6 +657,9 @@ def _bench_locked(
 
         # Once here, not in every fresh job process at the same time (the compiled code is cached on disk).
         kernels.warmup(lambda: log.info("compiling kernels (once; about 20-40 s, then cached)..."))
+    from covviz.signals import check as check_signals
+
+    check_signals()  # a Ctrl-C while numba compiled is swallowed by its ctypes callback: it stops here
     ran: list[str] = []
     failed: list[tuple[str, str]] = []
     events: list[str] = []
@@ -665,6 +668,7 @@ def _bench_locked(
         try:
             with contextlib.closing(run_with_progress(ex, todo, progress, "bench")) as outcomes:
                 for outcome in outcomes:
+                    check_signals()
                     if outcome.output is not None:
                         save_output(outcome.output, out)
                         ran.append(outcome.job.label)
