@@ -101,10 +101,10 @@ class SyntheticSequence(Sequence):
         phase = np.concatenate([[0.0], np.cumsum(speed[:-1])])
         W, H = cfg.width, cfg.height
         mx, my = 0.30 * W, 0.28 * H
-        cx = W / 2 + mx * np.sin(2 * np.pi * phase / 260.0)
-        cy = H / 2 + my * np.sin(2 * np.pi * phase / 170.0 + 0.6)
-        scale = 1.0 + 0.22 * np.sin(2 * np.pi * phase / 300.0)
-        theta = np.deg2rad(20.0) * np.sin(2 * np.pi * phase / 140.0)
+        cx = W / 2 + mx * _libm(math.sin, 2 * np.pi * phase / 260.0)
+        cy = H / 2 + my * _libm(math.sin, 2 * np.pi * phase / 170.0 + 0.6)
+        scale = 1.0 + 0.22 * _libm(math.sin, 2 * np.pi * phase / 300.0)
+        theta = np.deg2rad(20.0) * _libm(math.sin, 2 * np.pi * phase / 140.0)
         return np.stack([cx, cy, scale, theta], axis=1)
 
     def paint_target(self, img: np.ndarray, pose, texture: np.ndarray | None = None) -> np.ndarray:
@@ -147,10 +147,25 @@ class SyntheticSequence(Sequence):
         return np.stack([gray, gray, np.clip(gray.astype(np.int16) - 8, 0, 255).astype(np.uint8)], axis=2)
 
 
+def _libm(fn, x) -> np.ndarray:
+    """``fn`` (a :mod:`math` function) of every element of ``x``, as a float64 array of its shape.
+
+    The same bits on every CPU: NumPy's ``sin``/``cos``/``exp`` on arrays take
+    the CPU's SIMD code (AVX-512 SVML on one machine, other code on an AVX2 one),
+    which differs in the last bit; one such bit in the pose of frame 299 moved a
+    pixel across a grey level and changed the frame. The C library's scalar
+    functions are the same code everywhere the tests run.
+    """
+    a = np.asarray(x, dtype=np.float64)
+    return np.fromiter(map(fn, a.ravel().tolist()), dtype=np.float64, count=a.size).reshape(a.shape)
+
+
 def _clutter(rng: np.random.Generator, H: int, W: int) -> np.ndarray:
     """Cluttered background: smooth shading plus random rectangles, ellipses and lines."""
-    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
-    img = 90 + 40 * np.sin(xx / W * 3.1 + 0.4) * np.cos(yy / H * 2.3)
+    # separable shading: sin of the column times cos of the row (each through libm, see _libm)
+    sx = _libm(math.sin, np.arange(W, dtype=np.float64) / W * 3.1 + 0.4)
+    cy = _libm(math.cos, np.arange(H, dtype=np.float64) / H * 2.3)
+    img = (90 + 40 * cy[:, None] * sx[None, :]).astype(np.float32)
     for _ in range(70):
         kind = rng.integers(3)
         val = float(rng.uniform(20, 235))
@@ -164,19 +179,33 @@ def _clutter(rng: np.random.Generator, H: int, W: int) -> np.ndarray:
         else:
             x2, y2 = int(rng.integers(0, W)), int(rng.integers(0, H))
             cv2.line(img, (x, y), (x2, y2), val, int(rng.integers(1, 4)))
-    return cv2.GaussianBlur(img.astype(np.float32), (3, 3), 0.8)
+    return _blur3(img, 0.8)
+
+
+def _blur3(img: np.ndarray, sigma: float) -> np.ndarray:
+    """A 3x3 Gaussian blur (border reflected without its edge, as OpenCV's default), float32.
+
+    Written out in NumPy rather than ``cv2.GaussianBlur``, whose float32 result
+    follows the CPU (its AVX2 and SSE code differ in the last bit): element-wise
+    float64 products and sums in a fixed order are the same bits everywhere.
+    """
+    e = math.exp(-1.0 / (2.0 * sigma * sigma))
+    k0, k1 = e / (1.0 + 2.0 * e), 1.0 / (1.0 + 2.0 * e)
+    a = np.pad(np.asarray(img, dtype=np.float64), 1, mode="reflect")  # reflect = OpenCV's BORDER_REFLECT_101
+    rows = k0 * a[:-2, :] + k1 * a[1:-1, :] + k0 * a[2:, :]
+    return (k0 * rows[:, :-2] + k1 * rows[:, 1:-1] + k0 * rows[:, 2:]).astype(np.float32)
 
 
 def _target_texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     """A face-like textured target: bright oval, dark blobs, fine stripes."""
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     u, v = (xx + 0.5) / w - 0.5, (yy + 0.5) / h - 0.5
     tex = 200 - 120 * (u**2 + v**2)  # bright, vignetted
     for _ in range(5):
         bx, by = rng.uniform(-0.35, 0.35), rng.uniform(-0.35, 0.35)
         r = rng.uniform(0.06, 0.14)
-        tex -= rng.uniform(60, 140) * np.exp(-((u - bx) ** 2 + (v - by) ** 2) / (2 * r * r))
-    tex += 25 * np.sin(2 * np.pi * (3.0 * u + 2.0 * v) * 2)
+        tex -= rng.uniform(60, 140) * _libm(math.exp, -((u - bx) ** 2 + (v - by) ** 2) / (2 * r * r))
+    tex += 25 * _libm(math.sin, 2 * np.pi * (3.0 * u + 2.0 * v) * 2)
     tex[:, :2] = tex[:, -2:] = 40  # dark rim gives the target strong edges
     tex[:2, :] = tex[-2:, :] = 40
     return np.clip(tex, 0, 255).astype(np.float32)
