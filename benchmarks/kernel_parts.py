@@ -52,8 +52,8 @@ n = len(A)
 @numba.njit(nogil=True)
 def warp(gray, A, q, reps):
     g = q.shape[0]; H, W = gray.shape; flat = gray.ravel()
-    B = np.empty((g, g), np.float32); idx = np.empty(g, np.int64); dx = np.empty(g, np.int64)
-    dy = np.empty(g, np.int64); al = np.empty(g, np.float32); be = np.empty(g, np.float32); s = 0.0
+    B = np.empty((g, g), np.float32); idx = np.empty(g, np.int32); dx = np.empty(g, np.int32)
+    dy = np.empty(g, np.int32); al = np.empty(g, np.float32); be = np.empty(g, np.float32); s = 0.0
     for r in range(reps):
         for i in range(A.shape[0]):
             K._warp_patch(flat, H, W, A[i], q, B, idx, dx, dy, al, be)
@@ -63,8 +63,8 @@ def warp(gray, A, q, reps):
 @numba.njit(nogil=True)
 def patches(gray, A, q):
     g = q.shape[0]; H, W = gray.shape; flat = gray.ravel()
-    P = np.empty((A.shape[0], g, g), np.float32); idx = np.empty(g, np.int64); dx = np.empty(g, np.int64)
-    dy = np.empty(g, np.int64); al = np.empty(g, np.float32); be = np.empty(g, np.float32)
+    P = np.empty((A.shape[0], g, g), np.float32); idx = np.empty(g, np.int32); dx = np.empty(g, np.int32)
+    dy = np.empty(g, np.int32); al = np.empty(g, np.float32); be = np.empty(g, np.float32)
     for i in range(A.shape[0]):
         K._warp_patch(flat, H, W, A[i], q, P[i], idx, dx, dy, al, be)
     return P
