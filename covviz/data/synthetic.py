@@ -154,7 +154,9 @@ def _libm(fn, x) -> np.ndarray:
     the CPU's SIMD code (AVX-512 SVML on one machine, other code on an AVX2 one),
     which differs in the last bit; one such bit in the pose of frame 299 moved a
     pixel across a grey level and changed the frame. The C library's scalar
-    functions are the same code everywhere the tests run.
+    functions do not follow the vector width (glibc picks one variant for every
+    x86-64 CPU with FMA, as every machine covviz is tested on has);
+    ``tests/test_scenarios.py`` checks the frames with NumPy held to SSE.
     """
     a = np.asarray(x, dtype=np.float64)
     return np.fromiter(map(fn, a.ravel().tolist()), dtype=np.float64, count=a.size).reshape(a.shape)
