@@ -126,6 +126,34 @@ def test_score_alarms_by_hand():
     assert c["on_track"] == int(np.sum(iou[1:] >= 0.5))
 
 
+@settings(max_examples=150, deadline=None)
+@given(
+    st.lists(st.one_of(st.floats(0, 1), st.just(float("nan"))), min_size=2, max_size=120),
+    st.lists(st.one_of(st.floats(0, 1), st.just(float("nan"))), min_size=120, max_size=120),
+    st.lists(st.tuples(st.floats(0, 1), st.floats(0, 0.4)), min_size=1, max_size=8),
+    st.integers(1, 6),
+)
+def test_choose_alarms_one_pass_counts_equal_score_alarms(scores, ious, rules, cool):
+    """choose_alarm scores its candidate rules in one (compiled) pass per run: the same counts as
+    score_alarms on alarm_frames, rule by rule, nan scores and unlabelled frames included."""
+    from covviz.diagnosis.calibrate import _rule_counts, _rule_counts_py, loss_windows
+
+    n = len(scores)
+    iou = np.asarray(ious[:n], dtype=float)
+    iou[iou > 0.55] = 0.8  # on track now and then, so the run has losses to find
+    r = _run(iou)
+    hs = [Hysteresis(t, t - g, cool) for t, g in rules]
+    v = np.asarray(scores, dtype=float)
+    v = np.where(np.isfinite(v), v, -np.inf)
+    w = np.array(loss_windows(r), dtype=np.int64).reshape(-1, 3)
+    want = [(c["tp"], c["fp"], c["found"]) for h in hs for c in [score_alarms(alarm_frames(scores, h), r)]]
+    for kernel in (_rule_counts_py, _rule_counts()):
+        out = np.zeros((len(hs), 3), dtype=np.int64)
+        kernel(v, np.array([h.threshold for h in hs]), np.array([h.release for h in hs]), cool,
+               w[:, 0].copy(), w[:, 1].copy(), iou, 0.5, out)
+        assert [tuple(x) for x in out.tolist()] == want
+
+
 def test_choose_alarm_finds_a_signal_that_rises_before_each_loss(rng):
     runs, scores = [], []
     for k in range(4):

@@ -34,6 +34,7 @@ alarm is false.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 from dataclasses import dataclass, field
@@ -273,26 +274,85 @@ def _rule_key(c: dict) -> tuple:
     return (1, rc, -c["fp"]) if p >= MIN_PRECISION and rc > 0 else (0, f1, -c["fp"])
 
 
+def _rule_counts_py(v, th, rel, cooldown, first, last, iou, off_iou, out) -> None:
+    """For each rule ``(th[k], rel[k])`` the alarms' ``tp``, ``fp`` and the losses ``found`` on one run, into
+    ``out[k]``: :func:`alarm_frames` and :func:`score_alarms` in one pass (``v``: scores, nan as -inf;
+    ``first``/``last``: the 1-based loss windows, :func:`loss_windows`). Compiled by :func:`_rule_counts`."""
+    n, nw = len(v), len(first)
+    for k in range(len(th)):
+        active, below, tp, fp = False, 0, 0, 0
+        hit = np.zeros(nw, dtype=np.bool_)
+        for i in range(n):
+            x = v[i]
+            if not active:
+                if x >= th[k]:
+                    active, below = True, 0
+                    f, inside = i + 1, False
+                    for j in range(nw):
+                        if first[j] <= f <= last[j]:
+                            inside = True
+                            hit[j] = True
+                    if inside:
+                        tp += 1
+                    elif iou[i] >= off_iou:  # nan (no label): False, neither right nor false
+                        fp += 1
+            elif x < rel[k]:
+                below += 1
+                if below >= cooldown:
+                    active = False
+            else:
+                below = 0
+        out[k, 0], out[k, 1], out[k, 2] = tp, fp, hit.sum()
+
+
+@functools.cache
+def _rule_counts():
+    """:func:`_rule_counts_py`, compiled by numba when the kernels are (else as it is: the same counts)."""
+    from covviz.model import kernels
+
+    if not kernels.JIT_ENABLED:
+        return _rule_counts_py
+    import numba
+
+    return numba.njit(cache=True, nogil=True)(_rule_counts_py)
+
+
 def choose_alarm(scores: list[np.ndarray], runs: list[Run]) -> Hysteresis:
     """The alarm rule for a score on training runs: thresholds at quantiles of their scores, releases below.
 
     The rule is the same for the model and for every baseline signal: the most event recall at a
     precision of at least :data:`MIN_PRECISION`; if no candidate reaches it, the best F1; ties go to fewer
-    false alarms.
+    false alarms. The candidates are scored in one compiled pass per run (:func:`_rule_counts_py`: the
+    counts of :func:`score_alarms` on :func:`alarm_frames`, which ``tests/test_drift_detector.py`` checks).
     """
     allv = np.concatenate([s[r.labelled] for s, r in zip(scores, runs)])
     allv = allv[np.isfinite(allv)]
     if not len(allv):
         return Hysteresis(np.inf, np.inf, COOLDOWN)
-    best, best_key = None, None
+    rules = []
     for q in THRESHOLD_LEVELS:
         th = float(np.quantile(allv, q))
         for off in RELEASE_OFFSETS:
             rel = float(np.quantile(allv, max(q - off, 0.0)))
-            rule = Hysteresis(th, min(rel, th), COOLDOWN)
-            key = _rule_key(_pool([score_alarms(alarm_frames(s, rule), r) for s, r in zip(scores, runs)]))
-            if best_key is None or key > best_key:
-                best, best_key = rule, key
+            rules.append(Hysteresis(th, min(rel, th), COOLDOWN))
+    counts = np.zeros((len(rules), 3), dtype=np.int64)
+    kernel = _rule_counts()
+    ths = np.array([r.threshold for r in rules])
+    rels = np.array([r.release for r in rules])
+    for s, r in zip(scores, runs):
+        v = np.asarray(s, dtype=np.float64)
+        v = np.where(np.isfinite(v), v, -np.inf)
+        w = np.array(loss_windows(r), dtype=np.int64).reshape(-1, 3)
+        out = np.zeros((len(rules), 3), dtype=np.int64)
+        kernel(v, ths, rels, COOLDOWN, w[:, 0].copy(), w[:, 1].copy(), np.asarray(r.iou, dtype=np.float64),
+               OFF_TRACK_IOU, out)
+        counts += out
+    losses = sum(len(r.losses) for r in runs)
+    best, best_key = None, None
+    for rule, (tp, fp, found) in zip(rules, counts.tolist()):
+        key = _rule_key({"tp": tp, "fp": fp, "found": found, "losses": losses})
+        if best_key is None or key > best_key:
+            best, best_key = rule, key
     return best
 
 
