@@ -33,6 +33,18 @@ B = ["Car1", "Couple", "DragonBaby", "Football1", "Jogging-1", "MotorRolling", "
 SETS = {"A": A, "B": B, "AB": A + B}
 
 
+def ab_cells(per_seq: dict) -> list[str]:
+    """Precision / recall (found of losses) of held-out alarms (``{sequence: [(scores, counts, run), ...]}``,
+    as :func:`covviz.diagnosis.calibrate.loso` gives them) pooled over A, over B and over both: table cells."""
+    from covviz.diagnosis.calibrate import summarise
+
+    cells = []
+    for qs in (A, B, A + B):
+        s = summarise({q: v for q, v in per_seq.items() if q in qs and v}, np.random.default_rng(0), 10)
+        cells.append(f"{100 * s['precision']:.0f}% / {100 * s['recall']:.0f}% ({s['found']} of {s['losses']})")
+    return cells
+
+
 def _job(args):
     root, out_dir, cfgd, seq, seed = args
     out = Path(out_dir) / f"{seq}_s{seed}.json"

@@ -23,16 +23,13 @@ import time
 from collections import Counter
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from dev_sweep import A, B
+from dev_sweep import ab_cells
 
 
 def main(argv=None) -> int:
     from covviz.diagnosis import calibrate as cal
     from covviz.diagnosis.detector import DESIGNS, family_of
-    from covviz.diagnosis.signals import SIGNALS
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("bench_dir")
@@ -46,22 +43,12 @@ def main(argv=None) -> int:
     feats = {d: dict(zip(map(id, pool), cal._design(pool, signals, d))) for d in DESIGNS}
     print(f"{args.tracker}: {len(runs)} runs, {sum(len(r.losses) for r in runs)} losses")
 
-    def single(name, train, test):
-        sig, sign = cal.BASELINES[name]
-        k = SIGNALS.index(sig)
-        if not np.isfinite(np.concatenate([r.rows[:, k] for r in train])).any():
-            return None
-        rule = cal.choose_alarm([sign * r.rows[:, k] for r in train], train)
-        return [(sign * r.rows[:, k], cal.score_alarms(cal.alarm_frames(sign * r.rows[:, k], rule), r), r)
-                for r in test]
-
     def model(d, t, train, test):
         try:
             m = cal.fit_model(train, family, signals, [feats[d][id(r)] for r in train], design=d, target=t)
         except cal.InputError:
             return None
-        return [(p, cal.score_alarms(cal.alarm_frames(p, m.alarm), r), r)
-                for r in test for p in [m.probability(feats[d][id(r)])]]
+        return cal.held_out_model(m, [feats[d][id(r)] for r in test], test)
 
     cands = [("model", d, t) for d in DESIGNS for t in cal.TARGETS] + [("signal", b, None) for b in cal.BASELINES]
     seqs = sorted({r.sequence for r in pool if r.tracker == args.tracker})
@@ -78,22 +65,18 @@ def main(argv=None) -> int:
             for p in inner:
                 tr = [r for r in train if r.sequence != p]
                 te = [r for r in train if r.sequence == p]
-                got = model(c[1], c[2], tr, te) if c[0] == "model" else single(c[1], tr, te)
+                got = model(c[1], c[2], tr, te) if c[0] == "model" else cal.held_out_signal(c[1], tr, te)
                 counts += [cnt for _, cnt, _ in (got or [])]
             if counts:
                 keys[c] = (*cal._rule_key(cal._pool(counts)), c == ("model", "changes", cal.FIT_TARGET))
         best = max(keys, key=keys.get)
         picks[best] += 1
-        chosen[q] = model(best[1], best[2], train, test) if best[0] == "model" else single(best[1], train, test)
+        chosen[q] = model(best[1], best[2], train, test) if best[0] == "model" else cal.held_out_signal(best[1], train, test)
         print(f"  {q}: {' '.join(x for x in best if x)} (held out: {len(test)} runs; "
               f"{time.perf_counter() - t0:.0f} s)", flush=True)
     print("| method | A: precision / recall | B: precision / recall | all 14 |")
     print("|---|---:|---:|---:|")
-    cells = []
-    for qs in (A, B, A + B):
-        s = cal.summarise({q: v for q, v in chosen.items() if q in qs and v}, np.random.default_rng(0), 10)
-        cells.append(f"{100 * s['precision']:.0f}% / {100 * s['recall']:.0f}% ({s['found']} of {s['losses']})")
-    print("| chosen in each fold | " + " | ".join(cells) + " |")
+    print("| chosen in each fold | " + " | ".join(ab_cells(chosen)) + " |")
     print("chosen: " + "; ".join(f"{' '.join(x for x in c if x)} ×{n}" for c, n in picks.most_common()))
     return 0
 

@@ -19,10 +19,8 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from dev_sweep import A, B
+from dev_sweep import ab_cells
 
 
 def main(argv=None) -> int:
@@ -43,11 +41,7 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         res = cal.loso(runs, args.tracker)
         for name in ("model", "flow gap"):
-            cells = []
-            for qs in (A, B, A + B):
-                s = cal.summarise({q: v for q, v in res[name].items() if q in qs}, np.random.default_rng(0), 10)
-                cells.append(f"{100 * s['precision']:.0f}% / {100 * s['recall']:.0f}% ({s['found']} of {s['losses']})")
-            print(f"| {c:g} | {name} | " + " | ".join(cells) + " |", flush=True)
+            print(f"| {c:g} | {name} | " + " | ".join(ab_cells(res[name])) + " |", flush=True)
         print(f"(C = {c:g}: {time.perf_counter() - t0:.0f} s)", flush=True)
     return 0
 

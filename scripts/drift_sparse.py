@@ -22,10 +22,8 @@ import time
 from collections import Counter
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from dev_sweep import A, B
+from dev_sweep import ab_cells
 
 
 def forward(train, family, candidates, k, cal):
@@ -82,9 +80,7 @@ def main(argv=None) -> int:
             sig = order[:k]
             picks[k][sig] += 1
             m = cal.fit_model(train, family, sig, design="levels")
-            feats = cal._design(test, sig, "levels")
-            res[k][q] = [(p, cal.score_alarms(cal.alarm_frames(p, m.alarm), r), r)
-                         for f, r in zip(feats, test) for p in [m.probability(f)]]
+            res[k][q] = cal.held_out_model(m, cal._design(test, sig, "levels"), test)
         print(f"  {q}: {', '.join(order)} ({time.perf_counter() - t0:.0f} s)", flush=True)
     base = None if args.no_base else cal.loso(runs, args.tracker)
     print("| method | A: precision / recall | B: precision / recall | all 14 |")
@@ -93,11 +89,7 @@ def main(argv=None) -> int:
     if base is not None:
         rows += [("full model", base["model"]), ("flow gap", base["flow gap"])]
     for name, per in rows:
-        cells = []
-        for qs in (A, B, A + B):
-            s = cal.summarise({q: v for q, v in per.items() if q in qs}, np.random.default_rng(0), 10)
-            cells.append(f"{100 * s['precision']:.0f}% / {100 * s['recall']:.0f}% ({s['found']} of {s['losses']})")
-        print(f"| {name} | " + " | ".join(cells) + " |")
+        print(f"| {name} | " + " | ".join(ab_cells(per)) + " |")
     for k in args.k:
         print(f"k = {k}: " + "; ".join(f"{'+'.join(s)} ×{n}" for s, n in picks[k].most_common()))
     return 0

@@ -555,16 +555,29 @@ def loso(runs: list[Run], tracker: str, family: str | None = None, target: str |
             continue
         out["designs"][q] = design
         out["targets"][q] = tgt
-        out["model"][q] = [(p, score_alarms(alarm_frames(p, m.alarm), r), r)
-                           for r in test for p in [m.probability(feats[design][id(r)])]]
-        for name, (sig, sign) in BASELINES.items():
-            k = SIGNALS.index(sig)
-            if not np.isfinite(np.concatenate([r.rows[:, k] for r in train])).any():
-                continue
-            rule = choose_alarm([sign * r.rows[:, k] for r in train], train)
-            out[name][q] = [(sign * r.rows[:, k], score_alarms(alarm_frames(sign * r.rows[:, k], rule), r), r)
-                            for r in test]
+        out["model"][q] = held_out_model(m, [feats[design][id(r)] for r in test], test)
+        for name in BASELINES:
+            scored = held_out_signal(name, train, test)
+            if scored is not None:
+                out[name][q] = scored
     return out
+
+
+def held_out_model(model: DriftModel, feats: list[np.ndarray], test: list[Run]) -> list:
+    """``(probability, alarm counts, run)`` of each held-out run, from its features ``feats`` of the model's design."""
+    return [(p, score_alarms(alarm_frames(p, model.alarm), r), r) for f, r in zip(feats, test)
+            for p in [model.probability(f)]]
+
+
+def held_out_signal(name: str, train: list[Run], test: list[Run]) -> list | None:
+    """``(score, alarm counts, run)`` of each held-out run for the baseline signal ``name`` (:data:`BASELINES`),
+    its alarm rule chosen on ``train``; None if no training run has the signal."""
+    sig, sign = BASELINES[name]
+    k = SIGNALS.index(sig)
+    if not np.isfinite(np.concatenate([r.rows[:, k] for r in train])).any():
+        return None
+    rule = choose_alarm([sign * r.rows[:, k] for r in train], train)
+    return [(sign * r.rows[:, k], score_alarms(alarm_frames(sign * r.rows[:, k], rule), r), r) for r in test]
 
 
 def summarise(per_seq: dict, rng: np.random.Generator, n_boot: int = 1000) -> dict:
