@@ -25,6 +25,7 @@ from covviz.diagnosis.calibrate import (
     score_alarms,
 )
 from covviz.diagnosis.detector import (
+    VERSION,
     DriftModel,
     DriftWatch,
     Hysteresis,
@@ -193,7 +194,7 @@ def test_fit_model_learns_the_informative_signal_and_round_trips_json(rng, tmp_p
     m2 = DriftModel.load(m.save(tmp_path / "m.json"))
     np.testing.assert_allclose(m2.predict_run(runs[1].rows), m.predict_run(runs[1].rows), rtol=1e-5, atol=1e-6)
     doc = json.loads((tmp_path / "m.json").read_text())
-    assert doc["version"] == 2 and doc["design"] == "levels" == m2.design
+    assert doc["version"] == VERSION == 3 and doc["design"] == "levels" == m2.design
 
 
 def test_a_version_1_file_reads_as_the_levels_design(rng, tmp_path):
@@ -505,3 +506,83 @@ def test_cloud_gap_of_a_collapsed_cloud_is_bounded_by_the_spread_floor():
     obs.on_frame(seq.frame(1), [dataclasses.replace(rec, templates=one)])
     gap = np.linalg.norm(logm(rec.estimate_descriptor) - rec.templates[0])
     assert obs.latest[0]["cloud_gap"] == pytest.approx(gap / SignalConfig().spread_floor, rel=1e-9)
+
+
+# --------------------------------------------------------------------------- #
+# the one-signal design
+# --------------------------------------------------------------------------- #
+def test_signal_design_is_monotone_in_its_signal_and_its_alarms_are_the_signals_own(rng, tmp_path):
+    runs = _slide_runs(rng)
+    m = fit_model(runs, "manifold", SIGNALS, design="signal:flow_gap", target="off_track")
+    assert (m.design, m.signals) == ("signal", ("flow_gap",)) and m.coef[0] > 0
+    k = SIGNALS.index("flow_gap")
+    for r in runs:
+        x, p = r.rows[:, k], m.predict_run(r.rows)
+        order = np.argsort(x, kind="stable")
+        assert np.all(np.diff(p[order]) >= 0)  # more flow gap, never a lower probability
+        # the alarms are the raw signal's own at the levels the probability's threshold and release map to
+        lo, hi = x[p >= m.alarm.threshold], x[p < m.alarm.threshold]
+        th = (lo.min() + hi.max()) / 2 if len(lo) and len(hi) else (lo.min() if len(lo) else np.inf)
+        lo, hi = x[p >= m.alarm.release], x[p < m.alarm.release]
+        rel = (lo.min() + hi.max()) / 2 if len(lo) and len(hi) else (lo.min() if len(lo) else np.inf)
+        raw = Hysteresis(th, min(rel, th), m.alarm.cooldown)
+        assert alarm_frames(p, m.alarm).tolist() == alarm_frames(x, raw).tolist()
+    rows = runs[0].rows.copy()
+    rows[:30, k] = np.nan  # no value, no evidence: probability 0, below every alarm level
+    p = m.predict_run(rows)
+    assert np.all(p[:30] == 0.0) and np.all(p[30:] > 0)
+    m2 = DriftModel.load(m.save(tmp_path / "one.json"))
+    assert (m2.design, m2.signals) == ("signal", ("flow_gap",))
+    np.testing.assert_allclose(m2.predict_run(rows), m.predict_run(rows), rtol=1e-5, atol=1e-6)  # 6 digits kept
+    with pytest.raises(ValueError, match="one signal"):
+        DriftModel("manifold", ("flow_gap", "ess"), np.zeros(2), np.ones(2), np.ones(2), 0.0, m.alarm,
+                   design="signal")
+
+
+def test_signal_design_refuses_a_signal_that_points_the_wrong_way(rng):
+    runs = _slide_runs(rng)
+    k = SIGNALS.index("flow_gap")
+    flipped = [_run(r.iou, np.where(np.arange(len(SIGNALS)) == k, -r.rows, r.rows), r.sequence) for r in runs]
+    with pytest.raises(InputError, match="flow_gap: more trouble on it does not mean"):
+        fit_model(flipped, "manifold", SIGNALS, design="signal:flow_gap", target="off_track")
+    with pytest.raises(ValueError, match="signal design reads one of"):
+        fit_model(runs, "manifold", SIGNALS, design="signal:motion")
+
+
+def _confounded_runs(rng, n=240):
+    """Eight sequences: the flow gap rises at every loss; in half of them the ESS drops at the loss
+    too, in the other half it drops at random frames far from it (a scene's quirk, not a loss)."""
+    runs = []
+    a, b = SIGNALS.index("flow_gap"), SIGNALS.index("ess")
+    for j in range(8):
+        lost = 110 + 9 * j
+        iou = np.r_[np.full(lost - 8, 0.8), np.linspace(0.6, 0.12, 8), np.full(n - lost, 0.02)]
+        rows = rng.normal(0, 0.3, (n, len(SIGNALS)))
+        rows[:, b] += 1.0
+        rows[lost - 8: lost + 2, a] += 1.6
+        at = lost - 6 if j % 2 == 0 else int(rng.integers(20, lost - 40))
+        rows[at: at + 8, b] -= 2.5
+        runs.append(_run(iou, rows, seq=f"S{j}"))
+    return runs
+
+
+def test_choose_fit_weighs_single_signals_beside_the_models(rng):
+    runs = _confounded_runs(rng)
+    sig = ("flow_gap", "ess")
+    _, _, held = choose_fit(runs, "manifold", sig)
+    assert set(held) == {("levels", "episodes"), ("levels", "off_track"), ("changes", "episodes"),
+                         ("changes", "off_track"), ("signal:flow_gap", "off_track"), ("signal:ess", "off_track")}
+    # one fit per signal (its alarms do not depend on the target); the ESS alone finds few losses
+    assert held["signal:ess", "off_track"]["recall"] < 0.5
+    # against the changes model, whose z-scores see the ESS's dips away from the losses held out
+    design, target, held = choose_fit(runs, "manifold", sig, designs=("changes", "signal:flow_gap", "signal:ess"))
+    assert (design, target) == ("signal:flow_gap", "off_track")
+    best = held[design, target]
+    assert best["precision"] >= 0.5 and all(best["recall"] > v["recall"] for (d, _), v in held.items() if d != design)
+
+
+def test_calibrate_cli_offers_every_single_signal_the_fit_can_read():
+    from covviz.cli.calibrate import _TROUBLE
+    from covviz.diagnosis.calibrate import TROUBLE
+
+    assert set(_TROUBLE) == set(TROUBLE)

@@ -22,12 +22,17 @@ loss's frames (a loss: IoU below 0.1 after a frame at 0.5 or more) from 10 befor
 drift began to 5 after it, against the frames on track (IoU >= 0.5), frames long lost
 left out; or every frame below 0.5 (the first design). --target auto picks the one
 whose alarms hold up best on sequences held out in turn, with the design.
-It is a logistic regression on the signals, in one of two feature designs:
-their levels and short history, or their changes (each signal's robust z-score against
-its own last 30 frames, which carries over between scenes). --design auto picks the
-one whose alarms hold up best on sequences held out in turn; the alarm threshold and
-hysteresis are chosen on the same runs (see covviz/diagnosis/calibrate.py).
+It is a logistic regression on the signals, in one of three feature designs:
+their levels and short history; their changes (each signal's robust z-score against
+its own last 30 frames, which carries over between scenes); or one signal alone
+(the flow gap, the FB error, PSR, ESS or the distance z-score: its own threshold
+alarm, with a calibrated probability). --design auto picks the candidate whose alarms
+hold up best on sequences held out in turn; the alarm threshold and hysteresis are
+chosen on the same runs (see covviz/diagnosis/calibrate.py).
 """
+
+
+_TROUBLE = ("flow_gap", "fb_error", "psr", "ess", "dmin_z")  # calibrate.TROUBLE, without importing scikit-learn's caller
 
 
 def add_detector_arg(p: argparse.ArgumentParser) -> None:
@@ -70,8 +75,11 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
                    help="instead: one model per tracker family found (DIR/FAMILY.json) plus DIR/generic.json")
     p.add_argument("--trackers", metavar="NAME[,NAME…]", help="only these trackers' runs (default: all)")
     p.add_argument("--seeds", type=_seeds, metavar="LIST", help="only these seeds of stochastic trackers, e.g. 0-2")
-    p.add_argument("--design", choices=("auto", "levels", "changes"), default="auto",
-                   help="feature design (default auto: chosen by cross-validation over the runs' sequences)")
+    p.add_argument("--design", choices=("auto", "levels", "changes", "signal", *(f"signal:{s}" for s in _TROUBLE)),
+                   default="auto", metavar="DESIGN",
+                   help="feature design: levels, changes, signal (the best single signal) or signal:NAME "
+                        f"({', '.join(_TROUBLE)}); default auto: chosen by cross-validation over the runs' "
+                        "sequences, among the two models and each single signal")
     p.add_argument("--target", choices=("auto", "episodes", "off-track"), default="auto",
                    help="what the model learns to find: the drift episodes, each loss's frames from 10 before its "
                         "drift began to 5 after it, against the frames on track (what an alarm is scored on), or "
@@ -107,6 +115,7 @@ def cmd_calibrate(args) -> int:
 def _describe(m) -> str:
     f = m.fit
     found = "in drift episodes" if f.get("target", "off_track") == "episodes" else "off track"
-    return (f"{m.design} design, {f['runs']} runs, {f['frames']} frames ({f['positive_frames']} {found}), "
+    design = f"{m.design} design ({m.signals[0]})" if m.design == "signal" else f"{m.design} design"
+    return (f"{design}, {f['runs']} runs, {f['frames']} frames ({f['positive_frames']} {found}), "
             f"{f['losses']} losses; "
             f"alarm at p >= {m.alarm.threshold:.3f}, released below {m.alarm.release:.3f}")

@@ -19,7 +19,9 @@ design), where the model learns mostly what a lost box looks like (four fifths o
 the default tracker's off-track frames on the dev runs) and its alarms come at or
 after the loss. Which of the two a family's model is fitted to find is chosen with
 its feature design, by held-out alarms on the training sequences
-(:func:`choose_fit`). Leave-one-sequence-out on the default tracker's dev runs: every
+(:func:`choose_fit`). Beside the two models of many signals, each single signal of
+:data:`BASELINES` alone is a candidate of that choice (the ``signal`` design,
+``"signal:NAME"`` in :func:`candidates`). Leave-one-sequence-out on the default tracker's dev runs: every
 fold on the off-track frames, recall 61% at precision 51%; on the episodes, 75% at
 52%; chosen inside each fold, 65% at 49% (``docs/tuning.md``, ``docs/results.md``).
 
@@ -94,6 +96,11 @@ MIN_PRECISION = 0.5
 #: The issue's four, and the flow gap (the strongest single signal on the dev runs).
 BASELINES = {"FB error": ("fb_error", 1.0), "PSR": ("psr", -1.0), "ESS": ("ess", -1.0), "distance z": ("dmin_z", 1.0),
              "flow gap": ("flow_gap", 1.0)}
+#: The direction of trouble of each signal a ``signal`` design may read (from :data:`BASELINES`).
+TROUBLE = {sig: sign for sig, sign in BASELINES.values()}
+#: What a ``signal`` design is fitted on: its alarms do not depend on it (the map is monotone), and with
+#: the off-track frames its probability reads as the chance of being off track at that level.
+SIGNAL_TARGET = "off_track"
 
 
 @dataclass(frozen=True, eq=False)
@@ -366,22 +373,48 @@ def signals_for(trackers) -> tuple:
     return SIGNALS if trackers and all(t in STOCHASTIC for t in trackers) else GENERIC_SIGNALS
 
 
+def candidates(signals, designs=DESIGNS) -> tuple:
+    """The candidates :func:`choose_fit` weighs: each model design of ``designs`` on ``signals``, and for the
+    ``signal`` design one ``"signal:NAME"`` per signal of :data:`TROUBLE` among ``signals``."""
+    out = [d for d in designs if d != "signal"]
+    if "signal" in designs:
+        out += [f"signal:{s}" for s in TROUBLE if s in signals]
+    return tuple(out)
+
+
+def split_design(key: str, signals) -> tuple[str, tuple]:
+    """A candidate key (:func:`candidates`) as ``(design, signals it reads)``."""
+    design, _, name = key.partition(":")
+    if design == "signal":
+        if name not in TROUBLE:
+            raise ValueError(f"the signal design reads one of {', '.join(TROUBLE)}, got {name!r}")
+        return design, (name,)
+    if design not in DESIGNS or name:
+        raise ValueError(f"unknown feature design {key!r}; known: {', '.join(DESIGNS)}")
+    return design, tuple(signals)
+
+
 def _design(runs: list[Run], signals, design: str = "levels") -> list[np.ndarray]:
+    design, signals = split_design(design, signals)
     cols = np.array([SIGNALS.index(s) for s in signals])
     return [history_features(r.rows[:, cols], signals, design) for r in runs]
 
 
 def choose_design(runs: list[Run], family: str, signals, feats: dict[str, list[np.ndarray]] | None = None,
                   target: str = FIT_TARGET) -> tuple[str, dict]:
-    """The feature design (:data:`~covviz.diagnosis.detector.DESIGNS`) that carries over best to unseen
-    sequences, for models fitted to find ``target``: :func:`choose_fit` with that target only."""
-    design, _, scores = choose_fit(runs, family, signals, feats, (target,))
+    """The feature design of the many-signal models (``levels`` or ``changes``) that carries over best to
+    unseen sequences, for models fitted to find ``target``: :func:`choose_fit` with those only."""
+    design, _, scores = choose_fit(runs, family, signals, feats, (target,), ("levels", "changes"))
     return design, {d: v for (d, _), v in scores.items()}
 
 
 def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.ndarray]] | None = None,
-               targets=TARGETS, designs=DESIGNS) -> tuple[str, str, dict]:
+               targets=TARGETS, designs=None) -> tuple[str, str, dict]:
     """The feature design and the fit target (:data:`TARGETS`) whose models carry over best to unseen sequences.
+
+    ``designs``: the candidate keys (default :func:`candidates` of ``signals``: the two models and each
+    single signal; a ``"signal:NAME"`` candidate is fitted on :data:`SIGNAL_TARGET` if it is among
+    ``targets``, else on the first of them, since its alarms are the same for either).
 
     Leave-one-sequence-out on ``runs`` only: for each of their sequences a model of each design and
     target is fitted, and its alarm rule chosen, on the other sequences' runs, and the sequence's runs
@@ -393,15 +426,18 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
     between scenes) is used with the first of ``targets``. Returns the design, the target and each
     pair's held-out precision and recall, keyed ``(design, target)``.
     """
-    targets, designs = tuple(targets), tuple(designs)
+    targets = tuple(targets)
+    designs = candidates(signals) if designs is None else tuple(designs)
     fallback = ("changes" if "changes" in designs else designs[0]), targets[0], {}
     seqs = sorted({r.sequence for r in runs})
     if len(seqs) < 2:
         return fallback
-    feats = feats or {d: _design(runs, signals, d) for d in designs}
+    feats = dict(feats or {})
+    feats.update({d: _design(runs, signals, d) for d in designs if d not in feats})
     keys, scores = {}, {}
     for d in designs:
-        for t in targets:
+        single = d.startswith("signal")
+        for t in ((SIGNAL_TARGET if SIGNAL_TARGET in targets else targets[0],) if single else targets):
             counts = []
             for q in seqs:
                 tr = [i for i, r in enumerate(runs) if r.sequence != q]
@@ -430,19 +466,22 @@ def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray
     """A logistic drift model fitted on ``runs`` to find ``target`` (:func:`fit_target`), with its alarm
     rule chosen on them too.
 
-    ``feats``, if given, are the runs' features of ``design`` (:func:`_design`).
+    ``design``: a candidate key (:func:`candidates`); ``"signal:NAME"`` fits the ``signal`` design on that
+    one signal. ``feats``, if given, are the runs' features of ``design`` (:func:`_design`).
 
     Raises
     ------
     InputError
         If the runs have nothing to learn from: no loss (``episodes``) or no off-track frame
-        (``off_track``), or no frame on track.
+        (``off_track``), or no frame on track; or, for a single signal, if it is missing on every
+        training frame or higher trouble on it does not mean more frames off track there.
     """
     from sklearn import __version__ as skv
     from sklearn.linear_model import LogisticRegression
 
     signals = tuple(signals or signals_for(sorted({r.tracker for r in runs})))
     feats = feats if feats is not None else _design(runs, signals, design)
+    design, signals = split_design(design, signals)
     parts = [fit_target(r, target) for r in runs]
     X = np.concatenate([f[m] for f, (m, _) in zip(feats, parts)])
     y = np.concatenate([lab[m] for m, lab in parts])
@@ -460,9 +499,16 @@ def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray
     center = np.where(np.isfinite(center), center, 0.0)
     scale = np.where(np.isfinite(scale) & (scale > 1e-9), scale, 1.0)
     Z = (X - center) / scale
+    if design == "signal":  # fitted on the frames where the signal is, read as "no evidence" elsewhere
+        ok = np.isfinite(Z[:, 0])
+        Z, y = Z[ok], y[ok]
+        if y.all() or not y.any():
+            raise InputError(f"{signals[0]} is missing on every training frame of one class: nothing to fit")
     Z = np.where(np.isfinite(Z), Z, 0.0)
     lr = LogisticRegression(C=C_REG, max_iter=2000)
     lr.fit(Z, y)
+    if design == "signal" and not lr.coef_[0][0] * TROUBLE[signals[0]] > 0:
+        raise InputError(f"{signals[0]}: more trouble on it does not mean more frames off track on these runs")
     model = DriftModel(family, signals, center, scale, lr.coef_[0].copy(), float(lr.intercept_[0]),
                        Hysteresis(np.inf, np.inf, COOLDOWN), design=design)
     probs = [model.probability(f) for f in feats]
@@ -494,12 +540,21 @@ def family_runs(runs: list[Run], family: str) -> list[Run]:
 def fit_design(runs: list[Run], family: str, signals=None, fit_info: dict | None = None,
                target: str | None = None, design: str | None = None) -> DriftModel:
     """A model of the design and fit target :func:`choose_fit` picks on ``runs`` (those given are kept),
-    fitted on all of them."""
+    fitted on all of them.
+
+    ``design``: None (every candidate of :func:`candidates`), a design (``"signal"``: the best single
+    signal) or one candidate key (``"signal:flow_gap"``).
+    """
     signals = tuple(signals or signals_for(sorted({r.tracker for r in runs})))
-    designs = DESIGNS if design is None else (design,)
+    designs = candidates(signals, DESIGNS if design is None else (design,)) if design in (None, "signal") else (design,)
+    if not designs:
+        raise InputError(f"no single signal of {', '.join(TROUBLE)} among this family's signals")
+    single = len(designs) == 1 and designs[0].startswith("signal")
     targets = TARGETS if target is None else (target,)
+    if single and target is None:
+        targets = (SIGNAL_TARGET,)
     feats = {d: _design(runs, signals, d) for d in designs}
-    if len(designs) == len(targets) == 1:  # nothing to choose
+    if len(designs) == 1 and len(targets) == 1:  # nothing to choose
         design, target, held_out = designs[0], targets[0], {}
     else:
         design, target, held_out = choose_fit(runs, family, signals, feats, targets, designs)
@@ -539,7 +594,7 @@ def loso(runs: list[Run], tracker: str, family: str | None = None, target: str |
     family = family or family_of(tracker)
     pool = family_runs(runs, family)
     signals = signals_for(sorted({r.tracker for r in pool}))
-    feats = {d: dict(zip(map(id, pool), _design(pool, signals, d))) for d in DESIGNS}
+    feats = {d: dict(zip(map(id, pool), _design(pool, signals, d))) for d in candidates(signals)}
     seqs = sorted({r.sequence for r in pool if r.tracker == tracker})
     out: dict = {"model": {}, **{b: {} for b in BASELINES}, "designs": {}, "targets": {}}
     for q in seqs:
@@ -547,7 +602,7 @@ def loso(runs: list[Run], tracker: str, family: str | None = None, target: str |
         test = [r for r in pool if r.sequence == q and r.tracker == tracker]
         if not train or not test:
             continue
-        design, tgt, _ = choose_fit(train, family, signals, {d: [feats[d][id(r)] for r in train] for d in DESIGNS},
+        design, tgt, _ = choose_fit(train, family, signals, {d: [feats[d][id(r)] for r in train] for d in feats},
                                     TARGETS if target is None else (target,))
         try:
             m = fit_model(train, family, signals, [feats[design][id(r)] for r in train], design=design, target=tgt)

@@ -20,8 +20,16 @@ rule (threshold, release, cooldown). Two designs:
   cross-validation over sequences on the runs it fits, with what the model is
   fitted to find — the drift episodes (each loss's frames from 10 before its drift
   began to 5 after it, against the frames on track) or every off-track frame
-  (:func:`covviz.diagnosis.calibrate.choose_fit`). Shipped
-models, one per tracker family with a generic fallback, are package data under
+  (:func:`covviz.diagnosis.calibrate.choose_fit`);
+* ``signal``: one signal alone, ``asinh`` of its value (a missing value: probability 0, no evidence).
+  The logistic map is monotone, so its alarms are the signal's own threshold alarms, and the
+  probability reads as the chance of being off track at that level of the signal. On unseen
+  sequences a single steady signal can carry over better than any model of many (the flow gap
+  beat the default tracker's twelve-signal model held out, ``docs/tuning.md``), so
+  :func:`~covviz.diagnosis.calibrate.choose_fit` weighs each signal of
+  :data:`covviz.diagnosis.calibrate.BASELINES` beside the two models, by the same held-out rule.
+
+Shipped models, one per tracker family with a generic fallback, are package data under
 ``covviz/diagnosis/models/`` (:func:`shipped_model`); ``covviz calibrate``
 (:mod:`covviz.diagnosis.calibrate`) writes new ones.
 
@@ -70,11 +78,12 @@ __all__ = [
 ]
 
 FORMAT = "covviz-drift-model"
-#: Version 2 adds ``design``; a version-1 file is read as the ``levels`` design.
-VERSION = 2
-READS = (1, 2)
+#: Version 2 adds ``design``; a version-1 file is read as the ``levels`` design. Version 3 adds the
+#: ``signal`` design (a version-2 reader would call such a file broken).
+VERSION = 3
+READS = (1, 2, 3)
 #: The feature designs (module docstring).
-DESIGNS = ("levels", "changes")
+DESIGNS = ("levels", "changes", "signal")
 #: Tracker families with a model of their own; any other tracker gets the ``generic`` one.
 FAMILIES = {
     "manifold": ("manifold",),
@@ -203,7 +212,21 @@ class _Changes:
         return out
 
 
+class _Raw:
+    """The ``signal`` design online: ``asinh`` of the one signal's value."""
+
+    usual = None
+
+    def __init__(self, signals):
+        self.k = len(signals)
+
+    def push(self, row: np.ndarray) -> np.ndarray:
+        return _squash(np.asarray(row, dtype=np.float64))
+
+
 def _features(signals, design: str):
+    if design == "signal":
+        return _Raw(signals)
     if design == "levels":
         return _History(signals)
     if design == "changes":
@@ -225,6 +248,8 @@ def history_features(rows: np.ndarray, signals, design: str = "levels") -> np.nd
 def feature_names(signals, design: str = "levels") -> list[str]:
     if design == "changes":
         return [f"{s}_z" for s in signals]
+    if design == "signal":
+        return list(signals)
     return ([f"{s}{suf}" for suf in ("", f"_mean{HISTORY_MEAN}", f"_max{HISTORY_MAX}") for s in signals]
             + [f"{s}_rel" for s in signals if s in RELATIVE])
 
@@ -303,6 +328,8 @@ class DriftModel:
     def __post_init__(self):
         if self.design not in DESIGNS:
             raise ValueError(f"unknown feature design {self.design!r}; known: {', '.join(DESIGNS)}")
+        if self.design == "signal" and len(self.signals) != 1:
+            raise ValueError(f"the signal design reads one signal, got {len(self.signals)}")
         n = len(feature_names(self.signals, self.design))
         for name in ("center", "scale", "coef"):
             if np.shape(getattr(self, name)) != (n,):
@@ -318,6 +345,10 @@ class DriftModel:
     def probability(self, feats: np.ndarray) -> np.ndarray:
         """Drift probability of feature rows (:func:`feature_names`; missing values count as the training mean)."""
         z = (np.asarray(feats, dtype=np.float64) - self.center) / self.scale
+        if self.design == "signal":  # no value, no evidence: below every alarm level, as for the signal's own
+            logit = np.where(np.isfinite(z[..., 0]), z[..., 0] * self.coef[0] + self.intercept, -np.inf)
+            with np.errstate(over="ignore"):
+                return 1.0 / (1.0 + np.exp(-logit))
         z = np.where(np.isfinite(z), z, 0.0)
         return 1.0 / (1.0 + np.exp(-(z @ self.coef + self.intercept)))
 
@@ -400,6 +431,8 @@ _DESCRIBE = {
     f"median on the run's first {BASELINE_FRAMES} frames",
     "changes": "logistic regression on standardised asinh of each signal's robust z-score against its own "
     f"frames t-{CHANGE_LAG + CHANGE_WINDOW}..t-{CHANGE_LAG + 1} (median, 1.4826 MAD)",
+    "signal": "logistic regression on the standardised asinh of one signal's value (monotone: its alarms are "
+    "the signal's own threshold alarms); a missing value gives probability 0",
 }
 
 
