@@ -277,14 +277,19 @@ def test_episode_frames_are_the_frames_an_alarm_is_right_on():
         fit_target(r, "offtrack")
 
 
+def _slide(rng, n, lost):
+    """A run's IoU that slides off over the 8 frames before ``lost`` and stays lost, and noise signal rows."""
+    iou = np.r_[np.full(lost - 8, 0.8), np.linspace(0.6, 0.12, 8), np.full(n - lost, 0.02)]
+    return iou, rng.normal(0, 0.3, (n, len(SIGNALS)))
+
+
 def _slide_runs(rng, n=260):
     """Eight sequences: a signal that rises while the box slides off, another only once it is long lost."""
     runs = []
     a, b = SIGNALS.index("flow_gap"), SIGNALS.index("d_first")
     for j in range(8):
         lost = 100 + 7 * j
-        iou = np.r_[np.full(lost - 8, 0.8), np.linspace(0.6, 0.12, 8), np.full(n - lost, 0.02)]
-        rows = rng.normal(0, 0.3, (n, len(SIGNALS)))
+        iou, rows = _slide(rng, n, lost)
         rows[lost - 10: lost + 2, a] += 3.0  # the slide: from just before the drift to the loss
         rows[lost + 12:, b] += 3.0  # the look of the background, long after the loss
         runs.append(_run(iou, rows, seq=f"S{j}"))
@@ -556,8 +561,7 @@ def _confounded_runs(rng, n=240):
     a, b = SIGNALS.index("flow_gap"), SIGNALS.index("ess")
     for j in range(8):
         lost = 110 + 9 * j
-        iou = np.r_[np.full(lost - 8, 0.8), np.linspace(0.6, 0.12, 8), np.full(n - lost, 0.02)]
-        rows = rng.normal(0, 0.3, (n, len(SIGNALS)))
+        iou, rows = _slide(rng, n, lost)
         rows[:, b] += 1.0
         rows[lost - 8: lost + 2, a] += 1.6
         at = lost - 6 if j % 2 == 0 else int(rng.integers(20, lost - 40))

@@ -382,6 +382,14 @@ def candidates(signals, designs=DESIGNS) -> tuple:
     return tuple(out)
 
 
+def targets_of(key: str, targets) -> tuple:
+    """The fit targets :func:`choose_fit` tries for candidate ``key`` among ``targets``: all of them for a
+    model; one for a single signal (:data:`SIGNAL_TARGET` if among them), whose alarms are the same for either."""
+    if key.startswith("signal"):
+        return (SIGNAL_TARGET if SIGNAL_TARGET in targets else targets[0],)
+    return tuple(targets)
+
+
 def split_design(key: str, signals) -> tuple[str, tuple]:
     """A candidate key (:func:`candidates`) as ``(design, signals it reads)``."""
     design, _, name = key.partition(":")
@@ -413,8 +421,7 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
     """The feature design and the fit target (:data:`TARGETS`) whose models carry over best to unseen sequences.
 
     ``designs``: the candidate keys (default :func:`candidates` of ``signals``: the two models and each
-    single signal; a ``"signal:NAME"`` candidate is fitted on :data:`SIGNAL_TARGET` if it is among
-    ``targets``, else on the first of them, since its alarms are the same for either).
+    single signal; a ``"signal:NAME"`` candidate is fitted on one target only, :func:`targets_of`).
 
     Leave-one-sequence-out on ``runs`` only: for each of their sequences a model of each design and
     target is fitted, and its alarm rule chosen, on the other sequences' runs, and the sequence's runs
@@ -436,8 +443,7 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
     feats.update({d: _design(runs, signals, d) for d in designs if d not in feats})
     keys, scores = {}, {}
     for d in designs:
-        single = d.startswith("signal")
-        for t in ((SIGNAL_TARGET if SIGNAL_TARGET in targets else targets[0],) if single else targets):
+        for t in targets_of(d, targets):
             counts = []
             for q in seqs:
                 tr = [i for i, r in enumerate(runs) if r.sequence != q]
@@ -546,16 +552,13 @@ def fit_design(runs: list[Run], family: str, signals=None, fit_info: dict | None
     signal) or one candidate key (``"signal:flow_gap"``).
     """
     signals = tuple(signals or signals_for(sorted({r.tracker for r in runs})))
-    designs = candidates(signals, DESIGNS if design is None else (design,)) if design in (None, "signal") else (design,)
+    designs = candidates(signals, DESIGNS if design is None else (design,))
     if not designs:
         raise InputError(f"no single signal of {', '.join(TROUBLE)} among this family's signals")
-    single = len(designs) == 1 and designs[0].startswith("signal")
     targets = TARGETS if target is None else (target,)
-    if single and target is None:
-        targets = (SIGNAL_TARGET,)
     feats = {d: _design(runs, signals, d) for d in designs}
-    if len(designs) == 1 and len(targets) == 1:  # nothing to choose
-        design, target, held_out = designs[0], targets[0], {}
+    if len(designs) == 1 and len(targets_of(designs[0], targets)) == 1:  # nothing to choose
+        design, target, held_out = designs[0], targets_of(designs[0], targets)[0], {}
     else:
         design, target, held_out = choose_fit(runs, family, signals, feats, targets, designs)
     info = {**(fit_info or {}), "design_choice": {"held_out": {f"{d} {t}": v for (d, t), v in held_out.items()}}}

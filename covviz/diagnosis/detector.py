@@ -215,10 +215,8 @@ class _Changes:
 class _Raw:
     """The ``signal`` design online: ``asinh`` of the one signal's value."""
 
-    usual = None
-
     def __init__(self, signals):
-        self.k = len(signals)
+        pass
 
     def push(self, row: np.ndarray) -> np.ndarray:
         return _squash(np.asarray(row, dtype=np.float64))
