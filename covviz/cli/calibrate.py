@@ -25,14 +25,14 @@ whose alarms hold up best on sequences held out in turn, with the design.
 It is a logistic regression on the signals, in one of three feature designs:
 their levels and short history; their changes (each signal's robust z-score against
 its own last 30 frames, which carries over between scenes); or one signal alone
-(the flow gap, the FB error, PSR, ESS or the distance z-score: its own threshold
+(the flow gap, the slip, the FB error, PSR, ESS or the distance z-score: its own threshold
 alarm, with a calibrated probability). --design auto picks the candidate whose alarms
 hold up best on sequences held out in turn; the alarm threshold and hysteresis are
 chosen on the same runs (see covviz/diagnosis/calibrate.py).
 """
 
 
-_TROUBLE = ("flow_gap", "fb_error", "psr", "ess", "dmin_z")  # calibrate.TROUBLE, without importing scikit-learn's caller
+_TROUBLE = ("flow_gap", "slip", "fb_error", "psr", "ess", "dmin_z")  # calibrate.TROUBLE, without importing scikit-learn's caller
 
 
 def add_detector_arg(p: argparse.ArgumentParser) -> None:

@@ -93,9 +93,10 @@ RELEASE_OFFSETS = (0.0, 0.1, 0.3)
 #: The rule: the most recall at a training precision of at least this; if none reaches it, the best F1.
 MIN_PRECISION = 0.5
 #: Single signals scored as baselines: name -> (signal, sign); the score is sign * signal (high = trouble).
-#: The issue's four, and the flow gap (the strongest single signal on the dev runs).
+#: The issue's four, the flow gap (the strongest single signal on the dev runs) and the slip (the flow gap
+#: summed as a vector over recent frames).
 BASELINES = {"FB error": ("fb_error", 1.0), "PSR": ("psr", -1.0), "ESS": ("ess", -1.0), "distance z": ("dmin_z", 1.0),
-             "flow gap": ("flow_gap", 1.0)}
+             "flow gap": ("flow_gap", 1.0), "slip": ("slip", 1.0)}
 #: The direction of trouble of each signal a ``signal`` design may read (from :data:`BASELINES`).
 TROUBLE = {sig: sign for sig, sign in BASELINES.values()}
 #: What a ``signal`` design is fitted on: its alarms do not depend on it (the map is monotone), and with

@@ -110,6 +110,7 @@ LABELS = {
     "motion": ("motion", " box"), "scale_rate": ("scale rate", ""), "d_first": ("d to first look", ""),
     "d_recent": ("d to recent looks", ""), "psr": ("PSR", ""), "ess": ("ESS", ""),
     "dmin_z": ("distance z", ""), "mode_mass": ("second mode", ""), "cloud_gap": ("cloud gap", ""),
+    "slip": ("slip", " box"),
 }
 
 

@@ -12,6 +12,12 @@ Any tracker (OpenCV's included):
 * ``fb_fail`` — the share of those points LK lost on the way;
 * ``flow_gap`` — how far the box's motion is from the median flow of its own
   content, box sizes;
+* ``slip`` — the box's motion against its content's flow, as a signed vector summed
+  over the last :attr:`SignalConfig.slip_frames` frames whose flow is trusted
+  (:func:`covviz.model.flow.trusted`), in box sizes: a box sliding off its target onto a
+  look-alike moves a little more than its content on every frame, always the same way, so
+  the slide adds up here where each frame's ``flow_gap`` stays small; the jitter of a box
+  on track cancels;
 * ``motion`` — the box centre's motion, box sizes; ``scale_rate`` — ``|log|`` of
   the box size's change over :attr:`SignalConfig.scale_lag` frames;
 * ``d_first`` / ``d_recent`` — the log-Euclidean distance of the box content's
@@ -49,12 +55,12 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from covviz.model.adaptive import robust_z
-from covviz.model.flow import FB_GRID, LK_LEVELS, LK_WINDOW, ROI_MARGIN, gray8, median_flow
+from covviz.model.flow import FB_GRID, LK_LEVELS, LK_WINDOW, ROI_MARGIN, gray8, median_flow, trusted
 
-__all__ = ["GENERIC_SIGNALS", "PARTICLE_SIGNALS", "SIGNALS", "SignalConfig", "SignalObserver", "fb_flow", "psr"]
+__all__ = ["GENERIC_SIGNALS", "PARTICLE_SIGNALS", "SIGNALS", "SignalConfig", "SignalObserver", "fb_flow", "psr", "slip"]
 
 #: Signals of every tracker.
-GENERIC_SIGNALS = ("fb_error", "fb_fail", "flow_gap", "motion", "scale_rate", "d_first", "d_recent", "psr")
+GENERIC_SIGNALS = ("fb_error", "fb_fail", "flow_gap", "motion", "scale_rate", "d_first", "d_recent", "psr", "slip")
 #: Signals of particle filters only (``nan`` for the others).
 PARTICLE_SIGNALS = ("ess", "dmin_z", "mode_mass", "cloud_gap")
 #: Every signal, in the order they are saved.
@@ -79,6 +85,9 @@ SPREAD_FLOOR = 0.05
 COARSE_OFFSET = 0.5
 #: Frames over which ``scale_rate`` compares the box size.
 SCALE_LAG = 5
+#: Frames whose box-against-content motion ``slip`` sums (5: of 5 / 10 / 20, the best alarm alone when it was
+#: measured offline on the dev runs' boxes, ``docs/tuning.md``).
+SLIP_FRAMES = 5
 
 
 @dataclass(frozen=True)
@@ -98,12 +107,15 @@ class SignalConfig:
     coarse_offset: float = COARSE_OFFSET
     spread_floor: float = SPREAD_FLOOR
     scale_lag: int = SCALE_LAG
+    slip_frames: int = SLIP_FRAMES
 
     def __post_init__(self):
         if self.fb_grid < 2 or self.lk_window < 3 or self.lk_levels < 0:
             raise ValueError("need fb_grid >= 2, lk_window >= 3, lk_levels >= 0")
         if self.recent < 1 or self.z_window < self.z_min or self.z_min < 2 or self.scale_lag < 1:
             raise ValueError("need recent >= 1, z_window >= z_min >= 2, scale_lag >= 1")
+        if self.slip_frames < 1:
+            raise ValueError("need slip_frames >= 1")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -162,6 +174,15 @@ def fb_flow(prev: np.ndarray, cur: np.ndarray, box, cfg: SignalConfig | None = N
     return median_flow(prev, cur, box, cfg.fb_grid, cfg.lk_window, cfg.lk_levels, cfg.roi_margin)
 
 
+def slip(gaps, size: float) -> float:
+    """``slip``: the length of the sum of the trusted frames' ``motion − flow`` vectors (pixels; ``None`` for a
+    frame whose flow is not trusted) over ``size`` pixels; ``nan`` if none is trusted."""
+    ok = [g for g in gaps if g is not None]
+    if not ok:
+        return float("nan")
+    return float(np.hypot(*np.sum(ok, axis=0)) / max(size, 1e-9))
+
+
 def psr(d: np.ndarray, peak: int, side: np.ndarray) -> float:
     """Peak-to-sidelobe ratio of distances (lower is better): ``(mean d[side] - d[peak]) / std d[side]``.
 
@@ -190,6 +211,7 @@ class _State:
         self.recent: deque = deque(maxlen=cfg.recent)
         self.boxes: deque = deque(maxlen=cfg.scale_lag + 1)
         self.d_run: deque = deque(maxlen=cfg.z_window)
+        self.slip: deque = deque(maxlen=cfg.slip_frames)  # motion − flow (pixels) of recent frames, None: untrusted
         self.base_size = float("nan")
 
 
@@ -267,6 +289,8 @@ class SignalObserver:
                 out["fb_error"], out["fb_fail"] = fb, fail
                 if np.all(np.isfinite(flow)):
                     out["flow_gap"] = float(np.hypot(*(motion - flow)) / size)
+                s.slip.append(motion - flow if trusted(fb, fail, flow) else None)
+                out["slip"] = slip(s.slip, size)
         s.boxes.append(box)
         # ---- the content's look against its first and recent looks -------------------------
         L, coarse, _ = self._look(s, frame, rec, box, index)
