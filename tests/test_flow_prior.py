@@ -124,35 +124,3 @@ def test_the_flow_changes_the_run_and_the_seed_still_decides_it(frames):
 def test_flow_share_out_of_range_is_refused(bad):
     with pytest.raises(ConfigError, match="flow_share"):
         ManifoldConfig.from_dict({"flow_share": bad})
-
-
-def test_ring_flow_measures_the_surroundings_not_the_box(rng):
-    """A patch moving 3 px right over a background moving 2 px up: the box's flow is the patch's, the
-    ring's the background's."""
-    from covviz.model.flow import ring_flow
-
-    bg, fg = _texture(rng, 160, 200), _texture(rng, 40, 40)
-    a, b = np.roll(bg, 0, axis=0).copy(), np.roll(bg, -2, axis=0).copy()
-    a[60:100, 80:120] = fg
-    b[60:100, 83:123] = fg
-    box = (80, 60, 40, 40)
-    fb, fail, f = median_flow(a, b, box)
-    rfb, rfail, rf = ring_flow(a, b, box)
-    assert trusted(fb, fail, f) and f == pytest.approx([3.0, 0.0], abs=0.2)
-    assert rf == pytest.approx([0.0, -2.0], abs=0.2)
-    assert trusted(rfb, rfail, rf) and rfail < 0.3
-    assert not trusted(*ring_flow(a, b, (500, 400, 10, 10)))  # off the frame: nan
-
-
-def test_the_flow_guard_keeps_the_flow_of_a_box_that_moves_with_its_surroundings(frames):
-    """With the guard the flow is used only where the box's content moves otherwise than its ring; a guard
-    no motion can pass leaves the run exactly as without the prior, and 0 is no guard."""
-    seq, images = frames
-    _, off = _run(ManifoldConfig(n_particles=N), seq, images)
-    _, on = _run(ManifoldConfig(n_particles=N, flow_share=0.5), seq, images)
-    _, unguarded = _run(ManifoldConfig(n_particles=N, flow_share=0.5, flow_guard=0.0), seq, images)
-    _, shut = _run(ManifoldConfig(n_particles=N, flow_share=0.5, flow_guard=10.0), seq, images)
-    assert np.array_equal(on, unguarded)
-    assert np.array_equal(shut, off)
-    with pytest.raises(ConfigError, match="flow_guard"):
-        ManifoldConfig.from_dict({"flow_guard": -1})

@@ -21,8 +21,7 @@ import cv2
 import numpy as np
 
 __all__ = [
-    "FB_GRID", "FLOW_FAIL_MAX", "FLOW_FB_MAX", "LK_LEVELS", "LK_WINDOW", "RING_INNER", "RING_OUTER", "ROI_MARGIN",
-    "gray8", "median_flow", "ring_flow", "trusted",
+    "FB_GRID", "FLOW_FAIL_MAX", "FLOW_FB_MAX", "LK_LEVELS", "LK_WINDOW", "ROI_MARGIN", "gray8", "median_flow", "trusted",
 ]
 
 #: Points per side of the grid inside the box.
@@ -36,10 +35,6 @@ ROI_MARGIN = 0.75
 FLOW_FB_MAX = 0.5
 #: ... and that lost fewer than this share of its points.
 FLOW_FAIL_MAX = 0.5
-#: The ring around a box whose flow :func:`ring_flow` measures: between the box grown by RING_INNER and by
-#: RING_OUTER box sizes on each side.
-RING_INNER = 0.1
-RING_OUTER = 0.6
 
 
 def gray8(frame: np.ndarray) -> np.ndarray:
@@ -77,47 +72,19 @@ def median_flow(
     flow : ndarray, shape (2,)
         Median forward displacement of the tracked points, pixels (``nan`` if none).
     """
-    x, y, w, h = (float(v) for v in np.asarray(box, dtype=np.float64).reshape(4))
-    if not all(map(math.isfinite, (x, y, w, h))) or w <= 1 or h <= 1:
-        return float("nan"), 1.0, np.full(2, np.nan)
-    # the grid: points inside the box, 10% in from its edges
-    u = 0.1 + 0.8 * ((np.arange(grid) + 0.5) / grid)
-    pts = np.stack(np.meshgrid(x + w * u, y + h * u), -1).reshape(-1, 2)
-    return _lk_median(prev, cur, pts, (x - roi_margin * w, y - roi_margin * h, x + w + roi_margin * w,
-                                       y + h + roi_margin * h), math.sqrt(w * h), grid * grid, window, levels)
-
-
-def ring_flow(
-    prev: np.ndarray, cur: np.ndarray, box, grid: int = FB_GRID, window: int = LK_WINDOW, levels: int = LK_LEVELS,
-    inner: float = RING_INNER, outer: float = RING_OUTER,
-) -> tuple[float, float, np.ndarray]:
-    """:func:`median_flow` of a ring around ``box`` instead of its inside: the points of a
-    ``(2·grid) × (2·grid)`` grid over the box grown by ``outer`` box sizes on each side that lie outside
-    the box grown by ``inner``. What the box's surroundings did, to tell the box's content moving with
-    them (a box on the background) from a target moving on its own. Same returns as :func:`median_flow`
-    (the share lost counts the ring's points in the frame)."""
-    x, y, w, h = (float(v) for v in np.asarray(box, dtype=np.float64).reshape(4))
-    if not all(map(math.isfinite, (x, y, w, h))) or w <= 1 or h <= 1:
-        return float("nan"), 1.0, np.full(2, np.nan)
-    g = 2 * grid
-    u = (np.arange(g) + 0.5) / g * (1 + 2 * outer) - outer
-    pts = np.stack(np.meshgrid(x + w * u, y + h * u), -1).reshape(-1, 2)
-    out = ((pts[:, 0] < x - inner * w) | (pts[:, 0] > x + w + inner * w)
-           | (pts[:, 1] < y - inner * h) | (pts[:, 1] > y + h + inner * h))
-    pts = pts[out]
-    m = outer + 0.25  # LK's window and pyramid need room around the outermost points
-    return _lk_median(prev, cur, pts, (x - m * w, y - m * h, x + w + m * w, y + h + m * h), math.sqrt(w * h),
-                      len(pts), window, levels)
-
-
-def _lk_median(prev, cur, pts, roi, size: float, n_all: int, window: int, levels: int):
-    """Forward–backward LK of the points ``pts`` (pixels, ``(k, 2)``) inside the region ``roi`` (x0, y0, x1,
-    y1; clipped to the frame): median FB error over ``size``, the share of ``n_all`` lost, the median flow."""
     nan2 = np.full(2, np.nan)
+    x, y, w, h = (float(v) for v in np.asarray(box, dtype=np.float64).reshape(4))
     H, W = prev.shape[:2]
-    x0, y0 = max(0, math.floor(roi[0])), max(0, math.floor(roi[1]))
-    x1, y1 = min(W, math.ceil(roi[2])), min(H, math.ceil(roi[3]))
-    pts = np.column_stack([np.clip(pts[:, 0], 0, W - 1), np.clip(pts[:, 1], 0, H - 1)])
+    if not all(map(math.isfinite, (x, y, w, h))) or w <= 1 or h <= 1:
+        return float("nan"), 1.0, nan2
+    m = roi_margin
+    x0, y0 = max(0, math.floor(x - m * w)), max(0, math.floor(y - m * h))
+    x1, y1 = min(W, math.ceil(x + w + m * w)), min(H, math.ceil(y + h + m * h))
+    # the grid: points inside the box, 10% in from its edges, clipped to the frame
+    u = (np.arange(grid) + 0.5) / grid
+    gx = np.clip(x + w * (0.1 + 0.8 * u), 0, W - 1)
+    gy = np.clip(y + h * (0.1 + 0.8 * u), 0, H - 1)
+    pts = np.stack(np.meshgrid(gx, gy), -1).reshape(-1, 2)
     inside = (pts[:, 0] >= x0) & (pts[:, 0] < x1 - 1) & (pts[:, 1] >= y0) & (pts[:, 1] < y1 - 1)
     if x1 - x0 < 8 or y1 - y0 < 8 or inside.sum() < 4:
         return float("nan"), 1.0, nan2
@@ -129,9 +96,10 @@ def _lk_median(prev, cur, pts, roi, size: float, n_all: int, window: int, levels
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)
     p0b, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, None, **lk)
     ok = (st1.ravel() == 1) & (st2.ravel() == 1)
-    fail = 1.0 - ok.sum() / n_all
+    fail = 1.0 - ok.sum() / (grid * grid)
     if not ok.any():
         return float("nan"), float(fail), nan2
+    size = math.sqrt(w * h)
     err = np.hypot(*(p0[ok, 0] - p0b[ok, 0]).T)
     flow = np.median((p1[ok, 0] - p0[ok, 0]).astype(np.float64), axis=0)
     return float(np.median(err) / size), float(fail), flow

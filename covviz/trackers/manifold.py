@@ -79,7 +79,7 @@ from covviz.model.dynamics import (
     template_walk,
 )
 from covviz.model.features import N_FEATURES, pose_corners, pose_to_box
-from covviz.model.flow import gray8, median_flow, ring_flow, trusted
+from covviz.model.flow import gray8, median_flow, trusted
 from covviz.model.image import check_init_box
 from covviz.model.observation import (
     OBSERVATION_SPECS,
@@ -196,14 +196,6 @@ class ManifoldConfig:
         only when :func:`covviz.model.flow.trusted`), before the kinematic
         step; the others keep their own. 0: off (the default, and always in
         ``manifold-paper``; docs/tuning.md has why it is not on yet).
-    flow_guard : float
-        With ``flow_share``: the flow is used only if the box's surroundings moved
-        otherwise — the median flow of a ring around the last box
-        (:func:`covviz.model.flow.ring_flow`) trusted too, and at least this many
-        box sizes from the box's own. A box that has slipped onto the background
-        moves with it, and following its flow would carry it further away; a
-        target moving on its own, or held still by a following camera, differs
-        from its surroundings. 0: no guard.
     """
 
     n_particles: int = 600
@@ -232,7 +224,6 @@ class ManifoldConfig:
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     adaptive: AdaptiveDiffusion = field(default_factory=AdaptiveDiffusion)
     flow_share: float = 0.0
-    flow_guard: float = 0.0
 
     def __post_init__(self):
         check(self, MANIFOLD_SPECS)
@@ -307,7 +298,6 @@ MANIFOLD_SPECS: dict[str, Spec] = {
     "observation": Spec("config", cls=ObservationConfig),
     "adaptive": Spec("config", cls=AdaptiveDiffusion),
     "flow_share": Spec("float", 0, 1),
-    "flow_guard": Spec("float", 0, 10),
 }
 
 
@@ -583,18 +573,11 @@ class ManifoldTracker:
 
         The kinematic step damps the velocity (``v ← a·v + u``) before it moves the centre, so
         the velocity set is ``flow / a``: a chosen particle lands at ``x + flow`` plus its noise.
-        An untrusted flow (:func:`covviz.model.flow.trusted`), or with ``flow_guard`` one no different from
-        its surroundings', changes nothing and draws nothing.
+        An untrusted flow (:func:`covviz.model.flow.trusted`) changes nothing and draws nothing.
         """
         fb, fail, f = median_flow(self.flow.frame, cur8, self.flow.box)
         if not trusted(fb, fail, f):
             return ps
-        guard = self.config.flow_guard
-        if guard > 0:
-            rfb, rfail, rf = ring_flow(self.flow.frame, cur8, self.flow.box)
-            size = float(np.sqrt(self.flow.box[2] * self.flow.box[3]))
-            if not trusted(rfb, rfail, rf) or float(np.hypot(*(f - rf))) < guard * size:
-                return ps
         st = np.array(ps.states)
         n = len(st)
         k = round(self.config.flow_share * n)
