@@ -13,6 +13,7 @@ Usage::
     python scripts/dev_sweep.py run static '{"adaptive": {"enabled": false}}' --set AB --seeds 0,1,2
     python scripts/dev_sweep.py run adaptive '{}' --set A --seeds 0,1,2
     python scripts/dev_sweep.py table static adaptive          # per sequence, both seed sets
+    python scripts/dev_sweep.py pair adaptive static --seeds 0,1,2 3,4,5   # paired difference per seed set
 """
 
 from __future__ import annotations
@@ -116,6 +117,31 @@ def table(args) -> int:
     return 0
 
 
+def pair(args) -> int:
+    """Mean success AUC of two variants on the same sequences and seeds, their paired difference with a 95%
+    interval from resampling the 14 sequences, and the losses, for each seed set given and all of them pooled."""
+    def load(name, q, sd):
+        return json.loads((Path(args.out) / name / f"{q}_s{sd}.json").read_text())
+
+    groups = [[int(x) for x in g.split(",")] for g in args.seeds]
+    if len(groups) > 1:
+        groups.append(sorted({sd for g in groups for sd in g}))
+    a_name, b_name = args.names
+    print(f"| seeds | {a_name} | {b_name} | difference [95%] | losses |")
+    print("|---|---:|---:|---:|---:|")
+    rng = np.random.default_rng(0)
+    for g in groups:
+        a = np.array([[load(a_name, q, sd)["auc"] for sd in g] for q in A + B])
+        b = np.array([[load(b_name, q, sd)["auc"] for sd in g] for q in A + B])
+        d = (b - a).mean(axis=1)
+        boot = [d[rng.integers(0, len(d), len(d))].mean() for _ in range(4000)]
+        la, lb = (sum(load(n, q, sd)["losses"] for q in A + B for sd in g) for n in (a_name, b_name))
+        lo, hi = np.percentile(boot, [2.5, 97.5])
+        print(f"| {','.join(map(str, g))} | {a.mean():.3f} | {b.mean():.3f} | {d.mean():+.3f} [{lo:+.3f}, {hi:+.3f}] "
+              f"| {la} → {lb} |")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -128,10 +154,13 @@ def main(argv=None) -> int:
     r.add_argument("--root", default=os.environ.get("COVVIZ_SEQUENCES", "../shared/sequences"))
     t = sub.add_parser("table", help="a markdown table of variants already run")
     t.add_argument("names", nargs="+")
-    for p in (r, t):
+    pr = sub.add_parser("pair", help="the paired difference of two variants already run (the second minus the first)")
+    pr.add_argument("names", nargs=2)
+    pr.add_argument("--seeds", nargs="+", required=True, help="seed sets, e.g. 0,1,2 3,4,5 (pooled too)")
+    for p in (r, t, pr):
         p.add_argument("--out", default="runs/sweep", help="results folder (default runs/sweep, outside git)")
     args = ap.parse_args(argv)
-    return run(args) if args.cmd == "run" else table(args)
+    return {"run": run, "table": table, "pair": pair}[args.cmd](args)
 
 
 if __name__ == "__main__":
