@@ -63,7 +63,7 @@ from typing import Self
 import numpy as np
 
 from covviz.config import ConfigError, Spec, as_plain, check, from_mapping
-from covviz.model import fgbg
+from covviz.model import fgbg, refine
 from covviz.model.adaptive import AdaptiveDiffusion, AdaptState, adapted_kinematics, redetect
 from covviz.model.adaptive import evidence as adapt_evidence
 from covviz.model.dynamics import (
@@ -80,7 +80,7 @@ from covviz.model.dynamics import (
 )
 from covviz.model.features import N_FEATURES, pose_corners, pose_to_box
 from covviz.model.flow import gray8, median_flow, trusted
-from covviz.model.image import check_init_box
+from covviz.model.image import check_init_box, to_gray
 from covviz.model.observation import (
     OBSERVATION_SPECS,
     ObservationConfig,
@@ -196,6 +196,13 @@ class ManifoldConfig:
         only when :func:`covviz.model.flow.trusted`), before the kinematic
         step; the others keep their own. 0: off (the default, and always in
         ``manifold-paper``; docs/tuning.md has why it is not on yet).
+    ncc_rate : float
+        A position-sensitive last step for the reported box
+        (:mod:`covviz.model.refine`): its centre moves to where the target's
+        grey template correlates best within a quarter of a box size, and the
+        template takes this step towards the look there. The filter itself
+        (particles, templates, the colour model, the evidence) goes on from its
+        own estimate, so the step cannot lead it astray. 0: off.
     """
 
     n_particles: int = 600
@@ -224,6 +231,7 @@ class ManifoldConfig:
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     adaptive: AdaptiveDiffusion = field(default_factory=AdaptiveDiffusion)
     flow_share: float = 0.0
+    ncc_rate: float = 0.0
 
     def __post_init__(self):
         check(self, MANIFOLD_SPECS)
@@ -298,6 +306,7 @@ MANIFOLD_SPECS: dict[str, Spec] = {
     "observation": Spec("config", cls=ObservationConfig),
     "adaptive": Spec("config", cls=AdaptiveDiffusion),
     "flow_share": Spec("float", 0, 1),
+    "ncc_rate": Spec("float", 0, 1),
 }
 
 
@@ -435,6 +444,7 @@ class ManifoldTracker:
         self.anchor: AnchorState | None = None
         self.adapt: AdaptState | None = None
         self.flow: FlowState | None = None
+        self.ncc: NccState | None = None
         self.last_record: FrameRecord | None = None
         #: An experiment's hand in update() (covviz.diagnosis.counterfactual); None in normal runs.
         self.intervention: Intervention | None = None
@@ -506,6 +516,7 @@ class ManifoldTracker:
             flow=self.flow,
             rng_state=copy.deepcopy(self.rng.bit_generator.state),
             index=self._index,
+            ncc=self.ncc,
         )
 
     def restore(self, state: ManifoldState) -> None:
@@ -524,6 +535,7 @@ class ManifoldTracker:
         self.anchor = state.anchor
         self.adapt = state.adapt
         self.flow = state.flow
+        self.ncc = state.ncc
         self.rng.bit_generator.state = copy.deepcopy(state.rng_state)
         self._index = state.index
         self.last_record = None
@@ -554,6 +566,10 @@ class ManifoldTracker:
         self.anchor = AnchorState(_ro(L0), 1.0) if cfg.anchor_pull > 0 else None
         self.adapt = AdaptState.start(pose[0], L0) if cfg.adaptive.enabled else None
         self.flow = FlowState(_ro8(gray8(frame)), _ro(b)) if cfg.flow_share > 0 else None
+        self.ncc = None
+        if cfg.ncc_rate > 0:
+            size = (max(4, round(w)), max(4, round(h)))
+            self.ncc = NccState(_ro32(refine.patch(to_gray(frame), pose[0, :2], (w, h), size)))
         self.particles = ParticleSet(states, np.broadcast_to(L0, (n, *L0.shape)).copy(), np.full(n, -np.log(n)))
         self._index = 0
         self.last_record = FrameRecord(
@@ -669,6 +685,20 @@ class ManifoldTracker:
         )
         return new, states, PoseSearch(sp, sd, rp, rd)
 
+    def _ncc_step(self, g, est_pose):
+        """The pose to report: the estimate's centre moved to the grey template's best match nearby
+        (:func:`covviz.model.refine.ncc_shift`) in the full-resolution grey frame ``g``; the template
+        updated there when it matched."""
+        wh = np.asarray(self.model.base_wh, dtype=np.float64) * est_pose[2]
+        dx, dy, peak = refine.ncc_shift(g, est_pose[:2], wh, self.ncc.template)
+        out = est_pose.copy()
+        out[0] += dx
+        out[1] += dy
+        if peak >= refine.NCC_MIN:
+            self.ncc = NccState(_ro32(refine.update_template(self.ncc.template, g, out[:2], wh,
+                                                             self.config.ncc_rate)))
+        return out
+
     def update(self, frame: np.ndarray) -> np.ndarray:
         """Track into ``frame``; return the estimated box ``x, y, w, h``."""
         if self._closed:
@@ -778,6 +808,11 @@ class ManifoldTracker:
             self.colour = fgbg.update_colour_model(colour_state, frame, box, cfg.colour_rate)
         if cur8 is not None:
             self.flow = FlowState(_ro8(cur8), _ro(box))
+        out_pose = est_pose
+        if self.ncc is not None:  # the reported box only: the filter goes on from its own estimate
+            same = model.step <= 1 and model.smooth_sigma <= 0  # then the model's grey is the frame's own
+            out_pose = self._ncc_step(gray if same else to_gray(frame), est_pose)
+            box = pose_to_box(out_pose[None], model.base_wh)[0]
         t4 = time.perf_counter()
         tm["estimate"] = t4 - t3
 
@@ -798,8 +833,8 @@ class ManifoldTracker:
             index=self._index,
             box=box,
             tracker=self.name,
-            pose=est_pose,
-            corners=pose_corners(est_pose[None], model.base_wh)[0],
+            pose=out_pose,
+            corners=pose_corners(out_pose[None], model.base_wh)[0],
             particle_poses=poses,
             particle_corners=pose_corners(poses, model.base_wh),
             log_weights=lw,
@@ -844,6 +879,14 @@ class AnchorState:
 
     template: np.ndarray
     noise: float
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class NccState:
+    """The position step's template (``ManifoldConfig.ncc_rate``): the target's grey look, float32, at the
+    first box's size (read-only)."""
+
+    template: np.ndarray
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -893,6 +936,13 @@ class ManifoldState:
     flow: FlowState | None
     rng_state: dict
     index: int
+    ncc: NccState | None = None
+
+
+def _ro32(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=np.float32)
+    a.flags.writeable = False
+    return a
 
 
 def _ro(a: np.ndarray) -> np.ndarray:
@@ -972,6 +1022,7 @@ PAPER_LIKELIHOOD = {
     "rotation_steps": 0,
     "adaptive": AdaptiveDiffusion(enabled=False),
     "flow_share": 0.0,
+    "ncc_rate": 0.0,
 }
 #: The derivative normalisation and the colour term off, the quadrant term (and the adaptive diffusion) kept:
 #: the likelihood of before issue 14 on today's dynamics (for ablations and speed).
