@@ -4,8 +4,8 @@ Leave-one-sequence-out over all 14 dev sequences of one tracker, exactly as ``sc
 (the design and fit target chosen inside each fold), once per value of the logistic regression's
 inverse strength ``C`` (:data:`covviz.diagnosis.calibrate.C_REG`); the held-out alarms are then pooled
 over set A and over set B of ``scripts/dev_sweep.py`` separately, so a value chosen by looking at A is
-confirmed on B. Prints precision and recall of the model and of the flow gap alone (the strongest
-single signal).
+confirmed on B. Prints precision and recall of the model and of the flow gap and the slip alone (the
+strongest single signals).
 
 Usage::
 
@@ -40,7 +40,7 @@ def main(argv=None) -> int:
         cal.C_REG = c
         t0 = time.perf_counter()
         res = cal.loso(runs, args.tracker)
-        for name in ("model", "flow gap"):
+        for name in ("model", "flow gap", "slip"):
             print(f"| {c:g} | {name} | " + " | ".join(ab_cells(res[name])) + " |", flush=True)
         print(f"(C = {c:g}: {time.perf_counter() - t0:.0f} s)", flush=True)
     return 0
