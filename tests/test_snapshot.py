@@ -60,6 +60,18 @@ def _track(tr, images, first, last) -> tuple[np.ndarray, list[FrameRecord]]:
     return np.array(boxes), records
 
 
+def resumes_bit_for_bit(tr, fresh, images, first: int, last: int):
+    """Snapshot ``tr``, track it on ``images[first:last]``, restore the snapshot (through pickle) into
+    ``fresh`` (another seed) and track that too: the same boxes and records. Returns the snapshot."""
+    state = tr.snapshot()
+    boxes_a, recs_a = _track(tr, images, first, last)
+    fresh.restore(pickle.loads(pickle.dumps(state)))  # another seed: restore replaces the stream
+    boxes_b, recs_b = _track(fresh, images, first, last)
+    assert np.array_equal(boxes_a, boxes_b)
+    assert [d for ra, rb in zip(recs_a, recs_b) for d in deep_equal(ra, rb)] == []
+    return state
+
+
 def _started(name, seq, images):
     tr = make_tracker(name, seed=3, n_particles=N_PARTICLES if REGISTRY[name].stochastic else None)
     tr.init(images[0], seq.init_box)
@@ -87,13 +99,8 @@ def test_restore_replays_bit_for_bit(name, frames):
 def test_restore_into_a_fresh_tracker_through_pickle(name, frames):
     seq, images = frames
     tr = _started(name, seq, images)
-    state = tr.snapshot()
-    boxes_a, recs_a = _track(tr, images, FORK_AT + 1, FORK_AT + AFTER + 1)
     fresh = make_tracker(name, seed=99, n_particles=N_PARTICLES if REGISTRY[name].stochastic else None)
-    fresh.restore(pickle.loads(pickle.dumps(state)))  # another seed: restore replaces the stream
-    boxes_b, recs_b = _track(fresh, images, FORK_AT + 1, FORK_AT + AFTER + 1)
-    assert np.array_equal(boxes_a, boxes_b)
-    assert [d for ra, rb in zip(recs_a, recs_b) for d in deep_equal(ra, rb)] == []
+    resumes_bit_for_bit(tr, fresh, images, FORK_AT + 1, FORK_AT + AFTER + 1)
 
 
 def test_a_state_is_immutable(frames):
