@@ -558,8 +558,9 @@ def fit_design(runs: list[Run], family: str, signals=None, fit_info: dict | None
         raise InputError(f"no single signal of {', '.join(TROUBLE)} among this family's signals")
     targets = TARGETS if target is None else (target,)
     feats = {d: _design(runs, signals, d) for d in designs}
-    if len(designs) == 1 and len(targets_of(designs[0], targets)) == 1:  # nothing to choose
-        design, target, held_out = designs[0], targets_of(designs[0], targets)[0], {}
+    only = targets_of(designs[0], targets) if len(designs) == 1 else ()
+    if len(only) == 1:  # nothing to choose
+        design, target, held_out = designs[0], only[0], {}
     else:
         design, target, held_out = choose_fit(runs, family, signals, feats, targets, designs)
     info = {**(fit_info or {}), "design_choice": {"held_out": {f"{d} {t}": v for (d, t), v in held_out.items()}}}

@@ -565,11 +565,11 @@ class ManifoldTracker:
         self.quadrant_state = model.initial_quadrant_state() if cfg.quadrant_reliability > 0 else None
         self.anchor = AnchorState(_ro(L0), 1.0) if cfg.anchor_pull > 0 else None
         self.adapt = AdaptState.start(pose[0], L0) if cfg.adaptive.enabled else None
-        self.flow = FlowState(_ro8(gray8(frame)), _ro(b)) if cfg.flow_share > 0 else None
+        self.flow = FlowState(_ro(gray8(frame), np.uint8), _ro(b)) if cfg.flow_share > 0 else None
         self.ncc = None
         if cfg.ncc_rate > 0:
             size = (max(4, round(w)), max(4, round(h)))
-            self.ncc = NccState(_ro32(refine.patch(to_gray(frame), pose[0, :2], (w, h), size)))
+            self.ncc = NccState(_ro(refine.patch(to_gray(frame), pose[0, :2], (w, h), size), np.float32))
         self.particles = ParticleSet(states, np.broadcast_to(L0, (n, *L0.shape)).copy(), np.full(n, -np.log(n)))
         self._index = 0
         self.last_record = FrameRecord(
@@ -695,8 +695,8 @@ class ManifoldTracker:
         out[0] += dx
         out[1] += dy
         if peak >= refine.NCC_MIN:
-            self.ncc = NccState(_ro32(refine.update_template(self.ncc.template, g, out[:2], wh,
-                                                             self.config.ncc_rate)))
+            self.ncc = NccState(_ro(refine.update_template(self.ncc.template, g, out[:2], wh, self.config.ncc_rate),
+                                    np.float32))
         return out
 
     def update(self, frame: np.ndarray) -> np.ndarray:
@@ -807,7 +807,7 @@ class ManifoldTracker:
         if colour_state is not None:
             self.colour = fgbg.update_colour_model(colour_state, frame, box, cfg.colour_rate)
         if cur8 is not None:
-            self.flow = FlowState(_ro8(cur8), _ro(box))
+            self.flow = FlowState(_ro(cur8, np.uint8), _ro(box))
         out_pose = est_pose
         if self.ncc is not None:  # the reported box only: the filter goes on from its own estimate
             same = model.step <= 1 and model.smooth_sigma <= 0  # then the model's grey is the frame's own
@@ -939,20 +939,9 @@ class ManifoldState:
     ncc: NccState | None = None
 
 
-def _ro32(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=np.float32)
-    a.flags.writeable = False
-    return a
-
-
-def _ro(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=np.float64)
-    a.flags.writeable = False
-    return a
-
-
-def _ro8(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=np.uint8)
+def _ro(a: np.ndarray, dtype=np.float64) -> np.ndarray:
+    """A read-only copy of ``a`` as ``dtype`` (what a frozen state holds)."""
+    a = np.array(a, dtype=dtype)
     a.flags.writeable = False
     return a
 
