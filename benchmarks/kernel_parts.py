@@ -72,31 +72,30 @@ def patches(gray, A, q):
 @numba.njit(nogil=True)
 def features(P, u, reps):
     g = P.shape[1]; S = g - 2; h = S // 2
-    F = np.empty((9, h * h), np.float32); s = 0.0
+    F = np.empty((7, h * h), np.float32); s = 0.0
     for r in range(reps):
         for i in range(P.shape[0]):
             for k in range(4):
-                K._region_features(P[i % 16], h * (k // 2), h * (k % 2), h, h, u, np.float32(0.5), np.float32(2.0),
-                                   F)
+                K._region_features(P[i % 16], h * (k // 2), h * (k % 2), h, h, np.float32(0.5), np.float32(2.0), F)
                 s += F[3, 0]
     return s
 
 @numba.njit(nogil=True)
 def all_features(P, u):
     g = P.shape[1]; S = g - 2; h = S // 2
-    F = np.empty((P.shape[0], 4, 9, h * h), np.float32)
+    F = np.empty((P.shape[0], 4, 7, h * h), np.float32)
     for i in range(P.shape[0]):
         for k in range(4):
-            K._region_features(P[i], h * (k // 2), h * (k % 2), h, h, u, np.float32(0.5), np.float32(2.0), F[i, k])
+            K._region_features(P[i], h * (k // 2), h * (k % 2), h, h, np.float32(0.5), np.float32(2.0), F[i, k])
     return F
 
 @numba.njit(nogil=True)
-def moments(F, reps):
+def moments(F, XY, xyc, reps):
     S9 = np.empty(9); mean = np.empty(9); M = np.empty((9, 9)); s = 0.0
     for r in range(reps):
         for i in range(F.shape[0]):
             for k in range(4):
-                K._region_moments(F[i % 16, k], F.shape[3], S9, mean, M)
+                K._region_moments(F[i % 16, k], XY[k], xyc[k], F.shape[3], S9, mean, M)
                 s += M[2, 3]
     return s
 
@@ -109,12 +108,13 @@ def best(f, *args, repeat={repeat}):
 
 P = patches(gray, A, q)
 F = all_features(P, u)
+XY = np.empty((4, 2, F.shape[3])); xyc = np.empty((4, 5)); K._region_coords(u, S, XY, xyc)
 C, Q = K._outputs(n, True)
 args = (gray, A, q, u, model.eps, model.gain_normalize, True, C, Q, model.grad_normalize, model.grad_floor)
 whole = lambda reps: [K._descriptors_from_frame(*args) for _ in range(reps)]
 out = {{
     "cpu": numba.config.CPU_NAME or "host", "n": n, "S": int(S),
-    "warp": best(warp, gray, A, q), "features": best(features, P, u), "moments": best(moments, F),
+    "warp": best(warp, gray, A, q), "features": best(features, P, u), "moments": best(moments, F, XY, xyc),
     "whole": best(whole),
 }}
 print(json.dumps(out))

@@ -277,13 +277,17 @@ def _warp_patch(flat, H, W, a, q, B, idx, dx, dy, al, be):
 
 
 @_jit(_FM_FEAT)
-def _region_features(B, r0, c0, hr, hc, u, mean32, kf, F):
-    """The 9 scaled features of the ``hr x hc`` region at interior offset ``(r0, c0)`` of ``B`` into ``F``.
+def _region_features(B, r0, c0, hr, hc, mean32, kf, F):
+    """The 7 scaled image features of the ``hr x hc`` region at interior offset ``(r0, c0)`` of ``B`` into ``F``.
 
     ``B`` (S+2, S+2) float32 is the bordered patch *before* gain
     normalisation, ``mean32`` the mean of its interior and ``kf`` its gain
-    factor (1 without normalisation); ``u`` (S,) the centred coordinates,
-    ``F`` (9, ≥ hr·hc) float32, pixels row-major.
+    factor (1 without normalisation); ``F`` (7, ≥ hr·hc) float32, pixels
+    row-major: features 2..8 (``I, |Ix|, |Iy|, |grad I|, angle, |Ixx|,
+    |Iyy|``). The coordinates (features 0 and 1) are the same for every
+    patch: :func:`_region_coords` gives them once per call. (Storing the
+    features as float64, which spares :func:`_region_moments` its
+    conversions, made this stage 30% slower than the conversions cost.)
 
     The features of :func:`covviz.model.features.patch_features`, each rounded
     once: differences of neighbouring pixels are taken on the unscaled patch
@@ -305,35 +309,28 @@ def _region_features(B, r0, c0, hr, hc, u, mean32, kf, F):
     for rr in range(hr):
         R = r0 + rr + 1
         o = rr * hc
-        o0 = F[0, o : o + hc]
-        o1 = F[1, o : o + hc]
-        ux = u[c0 : c0 + hc]
-        yv = u[r0 + rr]
-        for cc in range(hc):
-            o0[cc] = ux[cc]
-            o1[cc] = yv
         row = B[R, c0 : c0 + hc + 2]
-        o2 = F[2, o : o + hc]
-        o3 = F[3, o : o + hc]
-        o7 = F[7, o : o + hc]
+        o2 = F[0, o : o + hc]
+        o3 = F[1, o : o + hc]
+        o7 = F[5, o : o + hc]
         for cc in range(hc):
             ctr = row[cc + 1]
             left = row[cc]
             right = row[cc + 2]
-            o2[cc] = (ctr - mean32) * kf
-            o3[cc] = abs(right - left)  # unscaled until the angle is taken
-            o7[cc] = abs((right - ctr) + (left - ctr)) * k2
+            o2[cc] = np.float32((ctr - mean32) * kf)
+            o3[cc] = np.float32(abs(right - left))  # unscaled until the angle is taken
+            o7[cc] = np.float32(abs((right - ctr) + (left - ctr)) * k2)
         up = B[R - 1, c0 + 1 : c0 + hc + 1]
         mid = B[R, c0 + 1 : c0 + hc + 1]
         dn = B[R + 1, c0 + 1 : c0 + hc + 1]
-        o4 = F[4, o : o + hc]
-        o8 = F[8, o : o + hc]
+        o4 = F[2, o : o + hc]
+        o8 = F[6, o : o + hc]
         for cc in range(hc):
             t = up[cc]
             b = dn[cc]
             m = mid[cc]
-            o4[cc] = abs(b - t)
-            o8[cc] = abs((b - m) + (t - m)) * k2
+            o4[cc] = np.float32(abs(b - t))
+            o8[cc] = np.float32(abs((b - m) + (t - m)) * k2)
     c0f = np.float32(_ATAN_C[0])
     c1f = np.float32(_ATAN_C[1])
     c2f = np.float32(_ATAN_C[2])
@@ -343,13 +340,13 @@ def _region_features(B, r0, c0, hr, hc, u, mean32, kf, F):
     c6f = np.float32(_ATAN_C[6])
     c7f = np.float32(_ATAN_C[7])
     N = hr * hc
-    gx = F[3, :N]
-    gy = F[4, :N]
-    o5 = F[5, :N]
-    o6 = F[6, :N]
+    gx = F[1, :N]
+    gy = F[2, :N]
+    o5 = F[3, :N]
+    o6 = F[4, :N]
     for j in range(N):
-        ix = gx[j]
-        iy = gy[j]
+        ix = np.float32(gx[j])  # exact: a float32 value
+        iy = np.float32(gy[j])
         # atan2(|Ix|, |Iy|) in [0, π/2], scaled to [0, 1]; 0 where both vanish (as arctan2).
         mn = min(ix, iy)
         mx = max(ix, iy)
@@ -362,33 +359,24 @@ def _region_features(B, r0, c0, hr, hc, u, mean32, kf, F):
         iy = iy * k2
         gx[j] = ix
         gy[j] = iy
-        o5[j] = math.sqrt(ix * ix + iy * iy)
+        o5[j] = np.float32(math.sqrt(ix * ix + iy * iy))
 
 
 @_jit(_FM_SUM)
-def _dot3x3(F, a0, b0, N, M, S):
-    """Nine float64 dot products of feature rows in one pass, and three sums.
+def _cross3(a0, a1, a2, b0, b1, b2, N, M, i, j):
+    """``M[i+p, j+q] = Σ_k a_p[k]·b_q[k]`` for ``p, q < 3``: nine float64 dot products in one pass.
 
-    ``M[a0+i, b0+j] = Σ_k F[a0+i, k]·F[b0+j, k]`` for ``i, j < 3`` and
-    ``S[b0+j] = Σ_k F[b0+j, k]``, from float32 ``F`` (products of float32
-    values are exact in float64). Six rows loaded per pixel for nine
-    products (instead of two per product); the sums stay in vector registers.
+    Six rows loaded per pixel for nine products; the nine sums stay in vector
+    registers (with the six rows, 15 of AVX2's 16).
     """
-    fa0 = F[a0, :N]
-    fa1 = F[a0 + 1, :N]
-    fa2 = F[a0 + 2, :N]
-    fb0 = F[b0, :N]
-    fb1 = F[b0 + 1, :N]
-    fb2 = F[b0 + 2, :N]
     s00 = s01 = s02 = s10 = s11 = s12 = s20 = s21 = s22 = 0.0
-    t0 = t1 = t2 = 0.0
-    for j in range(N):
-        x0 = np.float64(fa0[j])
-        x1 = np.float64(fa1[j])
-        x2 = np.float64(fa2[j])
-        y0 = np.float64(fb0[j])
-        y1 = np.float64(fb1[j])
-        y2 = np.float64(fb2[j])
+    for k in range(N):
+        x0 = np.float64(a0[k])
+        x1 = np.float64(a1[k])
+        x2 = np.float64(a2[k])
+        y0 = np.float64(b0[k])
+        y1 = np.float64(b1[k])
+        y2 = np.float64(b2[k])
         s00 += x0 * y0
         s01 += x0 * y1
         s02 += x0 * y2
@@ -398,42 +386,138 @@ def _dot3x3(F, a0, b0, N, M, S):
         s20 += x2 * y0
         s21 += x2 * y1
         s22 += x2 * y2
-        t0 += y0
-        t1 += y1
-        t2 += y2
-    M[a0, b0] = s00
-    M[a0, b0 + 1] = s01
-    M[a0, b0 + 2] = s02
-    M[a0 + 1, b0] = s10
-    M[a0 + 1, b0 + 1] = s11
-    M[a0 + 1, b0 + 2] = s12
-    M[a0 + 2, b0] = s20
-    M[a0 + 2, b0 + 1] = s21
-    M[a0 + 2, b0 + 2] = s22
-    S[b0] = t0
-    S[b0 + 1] = t1
-    S[b0 + 2] = t2
+    M[i, j] = s00
+    M[i, j + 1] = s01
+    M[i, j + 2] = s02
+    M[i + 1, j] = s10
+    M[i + 1, j + 1] = s11
+    M[i + 1, j + 2] = s12
+    M[i + 2, j] = s20
+    M[i + 2, j + 1] = s21
+    M[i + 2, j + 2] = s22
 
 
 @_jit(_FM_SUM)
-def _region_moments(F, N, S, mean, M):
-    """Mean ``mean`` (9,) and centred second moments ``M`` (9, 9), float64, of the features ``F[:, :N]``.
+def _sym3(a0, a1, a2, N, M, S, i):
+    """The upper triangle of ``M[i:i+3, i:i+3]`` (six dot products) and the sums ``S[i:i+3]``, in one pass."""
+    s00 = s01 = s02 = s11 = s12 = s22 = 0.0
+    t0 = t1 = t2 = 0.0
+    for k in range(N):
+        x0 = np.float64(a0[k])
+        x1 = np.float64(a1[k])
+        x2 = np.float64(a2[k])
+        s00 += x0 * x0
+        s01 += x0 * x1
+        s02 += x0 * x2
+        s11 += x1 * x1
+        s12 += x1 * x2
+        s22 += x2 * x2
+        t0 += x0
+        t1 += x1
+        t2 += x2
+    M[i, i] = s00
+    M[i, i + 1] = s01
+    M[i, i + 2] = s02
+    M[i + 1, i + 1] = s11
+    M[i + 1, i + 2] = s12
+    M[i + 2, i + 2] = s22
+    S[i] = t0
+    S[i + 1] = t1
+    S[i + 2] = t2
 
-    Raw moments and sums in float64, in 3x3 blocks of features
-    (:func:`_dot3x3`), then ``M = Σ f fᵀ − N·m mᵀ``. In float64 the
+
+@_jit(_FM_SUM)
+def _xyi_cross3(x, y, f, b0, b1, b2, N, M, S):
+    """Rows 0–2 (``x, y, I``) against features 3–5, and ``Σ x·I``, ``Σ y·I``, ``Σ I²``, ``Σ I``, in one pass.
+
+    :func:`_cross3` with four more sums (13 accumulators): the intensity's
+    own products ride along instead of a pass of their own. (A pass of four
+    sums alone got another interleave from LLVM: the same values, summed in
+    another order, a last bit apart from the previous kernels' Σ I².)
+    """
+    s00 = s01 = s02 = s10 = s11 = s12 = s20 = s21 = s22 = 0.0
+    sx = sy = sf = t = 0.0
+    for k in range(N):
+        x0 = x[k]
+        x1 = y[k]
+        x2 = np.float64(f[k])
+        y0 = np.float64(b0[k])
+        y1 = np.float64(b1[k])
+        y2 = np.float64(b2[k])
+        s00 += x0 * y0
+        s01 += x0 * y1
+        s02 += x0 * y2
+        s10 += x1 * y0
+        s11 += x1 * y1
+        s12 += x1 * y2
+        s20 += x2 * y0
+        s21 += x2 * y1
+        s22 += x2 * y2
+        sx += x0 * x2
+        sy += x1 * x2
+        sf += x2 * x2
+        t += x2
+    M[0, 3] = s00
+    M[0, 4] = s01
+    M[0, 5] = s02
+    M[1, 3] = s10
+    M[1, 4] = s11
+    M[1, 5] = s12
+    M[2, 3] = s20
+    M[2, 4] = s21
+    M[2, 5] = s22
+    M[0, 2] = sx
+    M[1, 2] = sy
+    M[2, 2] = sf
+    S[2] = t
+
+
+@_jit(_FM_SUM)
+def _region_moments(F, XY, xyc, N, S, mean, M):
+    """Mean ``mean`` (9,) and centred second moments ``M`` (9, 9), float64, of one region's features.
+
+    ``F`` (7, ≥ N) float32: the image features (:func:`_region_features`);
+    ``XY`` (2, ≥ N) float64: the region's coordinates and ``xyc`` (5,) their
+    sums ``Σx, Σy, Σx², Σxy, Σy²`` (:func:`_region_coords`, once per call:
+    they are the same for every patch). ``S`` (9,) float64 scratch.
+
+    Raw moments and sums in float64 (products of float32 values are exact),
+    then ``M = Σ f fᵀ − N·m mᵀ``. Each of the 45 distinct products is formed
+    once, and the 5 that involve only the coordinates not at all: 40 fused
+    multiply-adds, 7 additions and 20 float32-to-float64 conversions a pixel,
+    in five passes over the rows of three features (:func:`_xyi_cross3`,
+    :func:`_cross3`, :func:`_sym3`); the sums come out bit for bit those of
+    the previous layout (full 3x3 blocks of the 9 rows: 54 products, 18 sums
+    and 36 conversions a pixel; the moments stage 1.2-1.5x slower). In float64 the
     cancellation costs ~1e-16·(mean/std)² relative, nothing for these
     features (centred coordinates and intensity, derivatives whose mean is of
-    the order of their spread). ``S`` (9,) float64 scratch. (float32 sums,
-    even of centred features, were not enough: ``|grad I|`` is nearly a
-    function of ``|Ix|`` and ``|Iy|``, and the affine-invariant distance
-    magnifies an error in that thin direction ~100x; float32 dot products put
-    1e-5 to 1e-4 into the distances of real patches. A two-pass float64
-    version, centring first, was 25% slower for no accuracy that shows.)
+    the order of their spread). (float32 sums, even of centred features, were
+    not enough: ``|grad I|`` is nearly a function of ``|Ix|`` and ``|Iy|``,
+    and the affine-invariant distance magnifies an error in that thin
+    direction ~100x; float32 dot products put 1e-5 to 1e-4 into the distances
+    of real patches. A two-pass float64 version, centring first, was 25%
+    slower for no accuracy that shows.)
     """
-    d = F.shape[0]
-    for a0 in range(0, d, 3):
-        for b0 in range(a0, d, 3):
-            _dot3x3(F, a0, b0, N, M, S)
+    d = 9
+    x = XY[0, :N]
+    y = XY[1, :N]
+    f2 = F[0, :N]
+    f3 = F[1, :N]
+    f4 = F[2, :N]
+    f5 = F[3, :N]
+    f6 = F[4, :N]
+    f7 = F[5, :N]
+    f8 = F[6, :N]
+    S[0] = xyc[0]
+    S[1] = xyc[1]
+    M[0, 0] = xyc[2]
+    M[0, 1] = xyc[3]
+    M[1, 1] = xyc[4]
+    _xyi_cross3(x, y, f2, f3, f4, f5, N, M, S)
+    _cross3(x, y, f2, f6, f7, f8, N, M, 0, 6)
+    _sym3(f3, f4, f5, N, M, S, 3)
+    _cross3(f3, f4, f5, f6, f7, f8, N, M, 3, 6)
+    _sym3(f6, f7, f8, N, M, S, 6)
     for a in range(d):
         mean[a] = S[a] / N
     for a in range(d):
@@ -441,6 +525,43 @@ def _region_moments(F, N, S, mean, M):
             v = M[a, b] - S[a] * S[b] / N
             M[a, b] = v
             M[b, a] = v
+
+
+@_jit(_FM_SUM)
+def _region_coords(u, S, XY, xyc):
+    """The coordinates (features 0 and 1) of each region of an ``S x S`` patch, and their sums.
+
+    ``XY`` (regions, 2, pixels of a region) float64 and ``xyc`` (regions, 5):
+    ``Σx, Σy, Σx², Σxy, Σy²`` over the region. The regions of
+    :func:`_patch_descriptors`: four quadrants (row-major) for an even ``S``,
+    the whole patch for an odd one. The same for every patch of a call.
+    """
+    if S % 2 == 0:
+        h = S // 2
+        nreg = 4
+    else:
+        h = S
+        nreg = 1
+    for k in range(nreg):
+        r0 = h * (k // 2) if nreg == 4 else 0
+        c0 = h * (k % 2) if nreg == 4 else 0
+        sx = sy = sxx = sxy = syy = 0.0
+        for rr in range(h):
+            for cc in range(h):
+                xv = np.float64(u[c0 + cc])
+                yv = np.float64(u[r0 + rr])
+                XY[k, 0, rr * h + cc] = xv
+                XY[k, 1, rr * h + cc] = yv
+                sx += xv
+                sy += yv
+                sxx += xv * xv
+                sxy += xv * yv
+                syy += yv * yv
+        xyc[k, 0] = sx
+        xyc[k, 1] = sy
+        xyc[k, 2] = sxx
+        xyc[k, 3] = sxy
+        xyc[k, 4] = syy
 
 
 @_jit(_FM_SUM)
@@ -468,12 +589,14 @@ def _regularize(C, eps):
 
 
 @_jit(_FM_FEAT)
-def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q, grad_normalize=0.0, grad_floor=0.0):
+def _patch_descriptors(B, XY, xyc, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q, grad_normalize=0.0,
+                       grad_floor=0.0):
     """Descriptors of one bordered patch ``B`` (S+2, S+2) float32.
 
-    Writes ``C`` (9, 9) and, with ``quadrants``, ``Q`` (4, 9, 9). ``F``
-    (9, pixels of a quadrant) float32, ``mq`` (4, 9), ``Mq`` (4, 9, 9), ``r``
-    (9,): scratch. With ``grad_normalize`` (a power ``a`` > 0), the
+    Writes ``C`` (9, 9) and, with ``quadrants``, ``Q`` (4, 9, 9). ``XY``
+    and ``xyc``: the regions' coordinates and their sums
+    (:func:`_region_coords`). ``F`` (7, pixels of a region) float32, ``mq``
+    (4, 9), ``Mq`` (4, 9, 9), ``r`` (9,): scratch. With ``grad_normalize`` (a power ``a`` > 0), the
     first-derivative features are divided by the patch's mean ``|grad I|``
     to the power ``a`` and the second derivatives by theirs, as a congruence
     of the moments before regularisation (the numpy path's
@@ -497,13 +620,13 @@ def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q,
         for k in range(4):
             r0 = h * (k // 2)
             c0 = h * (k % 2)
-            _region_features(B, r0, c0, h, h, u, mean32, kf, F)
-            _region_moments(F, N, r, mq[k], Mq[k])
+            _region_features(B, r0, c0, h, h, mean32, kf, F)
+            _region_moments(F, XY[k], xyc[k], N, r, mq[k], Mq[k])
     else:
         nreg = 1
         N = S * S
-        _region_features(B, 0, 0, S, S, u, mean32, kf, F)
-        _region_moments(F, N, r, mq[0], Mq[0])
+        _region_features(B, 0, 0, S, S, mean32, kf, F)
+        _region_moments(F, XY[0], xyc[0], N, r, mq[0], Mq[0])
     # The whole patch: the regions' centred moments plus the spread of their means.
     for a in range(d):
         m = 0.0
@@ -544,12 +667,16 @@ def _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C, Q,
 def _descriptors_from_patches(P, u, eps, gain_normalize, quadrants, C, Q, grad_normalize, grad_floor):
     n, g, _ = P.shape
     S = g - 2
-    F = np.empty((9, S * S if S % 2 else (S // 2) ** 2), dtype=np.float32)
+    npix = S * S if S % 2 else (S // 2) ** 2
+    F = np.empty((7, npix), dtype=np.float32)
+    XY = np.empty((1 if S % 2 else 4, 2, npix))
+    xyc = np.empty((1 if S % 2 else 4, 5))
+    _region_coords(u, S, XY, xyc)
     mq = np.empty((4, 9))
     Mq = np.empty((4, 9, 9))
     r = np.empty(9)
     for i in range(n):
-        _patch_descriptors(P[i], u, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0],
+        _patch_descriptors(P[i], XY, xyc, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0],
                            grad_normalize, grad_floor)
 
 
@@ -561,7 +688,11 @@ def _descriptors_from_frame(gray, A, q, u, eps, gain_normalize, quadrants, C, Q,
     H, W = gray.shape
     flat = gray.ravel()
     B = np.empty((g, g), dtype=np.float32)
-    F = np.empty((9, S * S if S % 2 else (S // 2) ** 2), dtype=np.float32)
+    npix = S * S if S % 2 else (S // 2) ** 2
+    F = np.empty((7, npix), dtype=np.float32)
+    XY = np.empty((1 if S % 2 else 4, 2, npix))
+    xyc = np.empty((1 if S % 2 else 4, 5))
+    _region_coords(u, S, XY, xyc)
     mq = np.empty((4, 9))
     Mq = np.empty((4, 9, 9))
     r = np.empty(9)
@@ -572,7 +703,7 @@ def _descriptors_from_frame(gray, A, q, u, eps, gain_normalize, quadrants, C, Q,
     be = np.empty(g, dtype=np.float32)
     for i in range(n):
         _warp_patch(flat, H, W, A[i], q, B, idx, dx, dy, al, be)
-        _patch_descriptors(B, u, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0],
+        _patch_descriptors(B, XY, xyc, eps, gain_normalize, quadrants, F, mq, Mq, r, C[i], Q[i] if quadrants else Q[0],
                            grad_normalize, grad_floor)
 
 
