@@ -369,6 +369,31 @@ def test_result_with_another_config(results, root, capsys):
     assert "made with another manifold config" in one_line_error(capsys)
 
 
+@pytest.mark.parametrize("edit, kept", [
+    ({"drop": "ncc_rate"}, True),  # saved before the position step existed
+    ({"set": ("flow_guard", 0.0)}, True),  # saved while the (since removed) guard existed, off
+    ({"set": ("flow_guard", 0.05)}, False),  # the guard on: another tracker
+    ({"set": ("ncc_rate", 0.02)}, False),  # the position step on: another tracker
+])
+def test_result_saved_before_a_neutral_field(results, root, capsys, edit, kept):
+    js = result_paths(results, "beta", "manifold", 0)[1]
+    before = js.read_bytes()
+    doc = json.loads(before)
+    if "drop" in edit:
+        del doc["config"][edit["drop"]]
+    else:
+        doc["config"][edit["set"][0]] = edit["set"][1]
+    js.write_text(json.dumps(doc))
+    edited = js.read_bytes()
+    rc = bench_cli(root, results, "--trackers", "manifold", "--seeds", str(SEEDS), "--particles", str(PARTICLES))
+    if kept:
+        assert rc == 0
+        assert js.read_bytes() == edited  # kept as it was, not run again
+    else:
+        assert rc == 2
+        assert "made with another manifold config" in one_line_error(capsys)
+
+
 @pytest.mark.parametrize("command", ["bench", "report"])
 def test_corrupt_results_file(results, root, capsys, command):
     js = result_paths(results, "alpha", "csrt", None)[1]

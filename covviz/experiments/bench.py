@@ -252,6 +252,20 @@ def _canonical(obj) -> str:
     return json.dumps(obj, sort_keys=True, allow_nan=True)
 
 
+def _same_config(saved, current) -> bool:
+    """Whether a saved result's config is ``current``: equal once the fields of
+    :data:`covviz.trackers.manifold.NEUTRAL_FIELDS` at their neutral value are left out of both (a result
+    saved before such a field existed, or after it was removed, was made by the same tracker)."""
+    from covviz.trackers.manifold import NEUTRAL_FIELDS
+
+    def strip(c):
+        if not isinstance(c, dict):
+            return c
+        return {k: v for k, v in c.items() if not (k in NEUTRAL_FIELDS and v == NEUTRAL_FIELDS[k])}
+
+    return _canonical(strip(saved)) == _canonical(strip(current))
+
+
 def tracker_configs(
     trackers: Seq[str], particles: int | None, config: dict | None = None, variant_configs: dict | None = None
 ) -> dict[str, dict]:
@@ -498,7 +512,7 @@ def _is_done(job: Job, out: Path, config: dict) -> bool:
     if doc.get("interrupted") or doc.get("n_frames") != job.n_frames:
         log.info("%s: the result in %s is incomplete; running it again", job.label, js)
         return False
-    if _canonical(doc.get("config")) != _canonical(config):
+    if not _same_config(doc.get("config"), config):
         raise BenchError(
             f"{js}: made with another {job.tracker} config than the current one; delete "
             f"{out}/*/{job.tracker}*.json to re-run {job.tracker}, use --force, or choose a new --out"

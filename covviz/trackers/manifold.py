@@ -309,6 +309,13 @@ MANIFOLD_SPECS: dict[str, Spec] = {
     "ncc_rate": Spec("float", 0, 1),
 }
 
+#: Top-level fields added to (or removed from) the config after results were first saved, each with the
+#: value at which the tracker does exactly what it did without the field (every one was added off:
+#: ``ncc_rate`` 0 is bit for bit the tracker before the position step, ``flow_guard`` 0 the tracker after
+#: the guard's removal). A saved config that lacks such a field, or holds it at this value, is the same
+#: config as one without it: ``covviz bench`` keeps those results instead of refusing the folder.
+NEUTRAL_FIELDS: dict[str, float] = {"ncc_rate": 0.0, "flow_guard": 0.0}
+
 
 # --------------------------------------------------------------------------- #
 # what `covviz tune` searches (covviz.experiments.tune runs the study)
