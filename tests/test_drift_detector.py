@@ -389,12 +389,16 @@ def test_families_and_shipped_models():
 
 
 def test_describe_alarm():
-    a = {"frame": 63, "until": 80, "probability": 0.8, "peak": 0.91, "drivers": ["fb_error", "ess"],
+    a = {"frame": 63, "until": 80, "probability": 0.91, "peak": 0.91, "drivers": ["fb_error", "ess"],
          "signals": {"fb_error": 0.4, "ess": 0.01}}
     assert describe_alarm(a) == "frames 63–80: likely off track, p 0.91 — FB error 0.4 box, ESS 0.01"
     a["usual"] = {"fb_error": 0.0021, "ess": 0.31}
     assert describe_alarm(a) == ("frames 63–80: likely off track, p 0.91 — FB error 0.4 box (usually 0.0021), "
                                  "ESS 0.01 (usually 0.31)")
+    # the signals are the first frame's: so is the probability beside them, the episode's peak after it
+    a = {"frame": 108, "until": 112, "probability": 0.6702, "peak": 0.7493, "drivers": ["slip"],
+         "signals": {"slip": 0.52}}
+    assert describe_alarm(a) == "frames 108–112: likely off track, p 0.67 (peak 0.75) — slip 0.52 box"
 
 
 # --------------------------------------------------------------------------- #

@@ -592,6 +592,8 @@ class DriftWatch(Observer):
 def describe_alarm(a: dict) -> str:
     """One line for a terminal: ``frames 63–80: likely off track, p 0.91 — FB error 0.4 box, ESS 0.01``.
 
+    The probability and the signals are those of the alarm's first frame, as in the recording's event
+    for it; where the episode's probability rose higher later, its peak follows: ``p 0.80 (peak 0.91)``.
     An alarm of the ``changes`` design also says what each value usually was in the run (the median
     of its window): ``ESS 0.01 (usually 0.31)``.
     """
@@ -604,7 +606,8 @@ def describe_alarm(a: dict) -> str:
         name, unit = LABELS.get(k, (k, ""))
         u = a.get("usual", {}).get(k)
         parts.append(f"{name} {v:.2g}{unit}" + ("" if u is None else f" (usually {u:.2g})"))
-    return f"{span}: likely off track, p {a.get('peak', a['probability']):.2f}" + (
+    p, peak = f"{a['probability']:.2f}", f"{a.get('peak', a['probability']):.2f}"
+    return f"{span}: likely off track, p {p}" + ("" if peak == p else f" (peak {peak})") + (
         " — " + ", ".join(parts) if parts else "")
 
 
