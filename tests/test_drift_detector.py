@@ -533,6 +533,25 @@ def test_calibrate_command_writes_a_model_the_detector_option_reads(tmp_path, rn
                  "--detector", str(tmp_path / "missing.json")]) == 2
 
 
+def test_calibrate_refuses_a_tracker_or_seeds_the_folder_does_not_have(tmp_path, rng, capsys, caplog):
+    from covviz.cli import main
+
+    _fake_bench(tmp_path, rng)
+    seeds = sorted(r.seed for r in load_runs(tmp_path / "bench"))
+    out = tmp_path / "det.json"
+    # a seed filter that matches no stochastic run would have fitted on whatever runs had no seed
+    assert main(["calibrate", str(tmp_path / "bench"), "--seeds", "90-92", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "no results of seed(s) 90-92" in err and "have seeds" in err and not out.exists()
+    assert main(["calibrate", str(tmp_path / "bench"), "--trackers", "manifold,nosuch", "--out", str(out)]) == 2
+    assert "no results of nosuch (it has manifold)" in capsys.readouterr().err and not out.exists()
+    # some seeds there, some not: fitted on those there, the others named
+    with caplog.at_level("WARNING"):
+        runs = load_runs(tmp_path / "bench", seeds={seeds[0], 90})
+    assert [r.seed for r in runs] == [s for s in seeds if s == seeds[0]]
+    assert "no results of seed(s) 90" in caplog.text
+
+
 def test_cloud_gap_of_a_collapsed_cloud_is_bounded_by_the_spread_floor():
     """A cloud collapsed onto one ancestor (or frozen by the adaptive diffusion) has no spread: the
     gap is measured against SignalConfig.spread_floor instead of exploding (10^5-10^6 on the dev runs)."""

@@ -146,13 +146,18 @@ def load_runs(bench_dir, trackers=None, seeds=None) -> list[Run]:
     Raises
     ------
     InputError
-        If the folder does not exist or holds no such result.
+        If the folder does not exist or holds no such result, if a tracker of ``trackers`` has no result
+        there, or if none of ``seeds`` is among its stochastic trackers' seeds (a seed filter that matched
+        nothing would leave only the deterministic trackers' runs, silently). Seeds of ``seeds`` that are
+        missing while others are present are logged as a warning.
     """
     root = Path(bench_dir)
     if not root.is_dir():
         raise InputError(f"{root}: no such folder (give a 'covviz bench --out' folder)")
     runs: list[Run] = []
     skipped = 0
+    seen_trackers: set = set()
+    seen_seeds: set = set()
     for js in sorted(root.glob("*/*.json")):
         try:
             doc = json.loads(js.read_text())
@@ -161,8 +166,11 @@ def load_runs(bench_dir, trackers=None, seeds=None) -> list[Run]:
             continue
         if not isinstance(doc, dict) or "tracker" not in doc:
             continue
+        seen_trackers.add(doc["tracker"])
         if trackers is not None and doc["tracker"] not in trackers:
             continue
+        if doc.get("seed") is not None:
+            seen_seeds.add(doc["seed"])
         if seeds is not None and doc.get("seed") is not None and doc["seed"] not in seeds:
             continue
         dg = doc.get("diagnosis") or {}
@@ -177,10 +185,35 @@ def load_runs(bench_dir, trackers=None, seeds=None) -> list[Run]:
                         losses_of(iou)))
     if skipped:
         log.info("%d results without signals or labels skipped (re-run them with this covviz)", skipped)
+    missing = sorted(set(trackers or ()) - seen_trackers)
+    if missing and seen_trackers:
+        raise InputError(f"{root}: no results of {', '.join(missing)} (it has {', '.join(sorted(seen_trackers))})")
+    if seeds is not None and seen_seeds:
+        if not set(seeds) & seen_seeds:
+            raise InputError(f"{root}: no results of seed(s) {_seed_list(seeds)} (its stochastic trackers have "
+                             f"seeds {_seed_list(seen_seeds)})")
+        if set(seeds) - seen_seeds:
+            log.warning("%s: no results of seed(s) %s; using %s", root, _seed_list(set(seeds) - seen_seeds),
+                        _seed_list(set(seeds) & seen_seeds))
     if not runs:
         raise InputError(f"{root}: no results with drift signals and ground truth "
                          "(run 'covviz bench' on labelled sequences with this covviz first)")
     return runs
+
+
+def _seed_list(seeds) -> str:
+    """``{0, 1, 2, 5}`` as ``0-2, 5``."""
+    out, run = [], []
+    for s in sorted(seeds):
+        if run and s == run[-1] + 1:
+            run.append(s)
+            continue
+        if run:
+            out.append(str(run[0]) if len(run) == 1 else f"{run[0]}-{run[-1]}")
+        run = [s]
+    if run:
+        out.append(str(run[0]) if len(run) == 1 else f"{run[0]}-{run[-1]}")
+    return ", ".join(out)
 
 
 # --------------------------------------------------------------------------- #
