@@ -121,11 +121,10 @@ def goals(found: dict) -> list[str]:
 
 
 def _span(seeds) -> str:
-    """``[0, 1, 2]`` as ``0–2`` (consecutive), else ``0, 2, 5``."""
-    seeds = sorted(seeds)
-    if seeds and seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 2:
-        return f"{seeds[0]}–{seeds[-1]}"
-    return ", ".join(map(str, seeds))
+    """``[0, 1, 2, 5]`` as ``0–2, 5``."""
+    from covviz.diagnosis.calibrate import seed_list
+
+    return seed_list(seeds, dash="–")
 
 
 def shipped_table(runs) -> tuple[list[str], list, list]:

@@ -74,6 +74,7 @@ __all__ = [
     "load_runs",
     "losses_of",
     "score_alarms",
+    "seed_list",
 ]
 
 #: A frame is off track (the label the model is fitted on) below this IoU with the ground truth.
@@ -190,29 +191,29 @@ def load_runs(bench_dir, trackers=None, seeds=None) -> list[Run]:
         raise InputError(f"{root}: no results of {', '.join(missing)} (it has {', '.join(sorted(seen_trackers))})")
     if seeds is not None and seen_seeds:
         if not set(seeds) & seen_seeds:
-            raise InputError(f"{root}: no results of seed(s) {_seed_list(seeds)} (its stochastic trackers have "
-                             f"seeds {_seed_list(seen_seeds)})")
+            raise InputError(f"{root}: no results of seed(s) {seed_list(seeds)} (its stochastic trackers have "
+                             f"seeds {seed_list(seen_seeds)})")
         if set(seeds) - seen_seeds:
-            log.warning("%s: no results of seed(s) %s; using %s", root, _seed_list(set(seeds) - seen_seeds),
-                        _seed_list(set(seeds) & seen_seeds))
+            log.warning("%s: no results of seed(s) %s; using %s", root, seed_list(set(seeds) - seen_seeds),
+                        seed_list(set(seeds) & seen_seeds))
     if not runs:
         raise InputError(f"{root}: no results with drift signals and ground truth "
                          "(run 'covviz bench' on labelled sequences with this covviz first)")
     return runs
 
 
-def _seed_list(seeds) -> str:
-    """``{0, 1, 2, 5}`` as ``0-2, 5``."""
+def seed_list(seeds, dash: str = "-") -> str:
+    """``{0, 1, 2, 5}`` as ``0-2, 5`` (runs of consecutive seeds joined by ``dash``)."""
     out, run = [], []
     for s in sorted(seeds):
         if run and s == run[-1] + 1:
             run.append(s)
             continue
         if run:
-            out.append(str(run[0]) if len(run) == 1 else f"{run[0]}-{run[-1]}")
+            out.append(str(run[0]) if len(run) == 1 else f"{run[0]}{dash}{run[-1]}")
         run = [s]
     if run:
-        out.append(str(run[0]) if len(run) == 1 else f"{run[0]}-{run[-1]}")
+        out.append(str(run[0]) if len(run) == 1 else f"{run[0]}{dash}{run[-1]}")
     return ", ".join(out)
 
 
