@@ -13,7 +13,7 @@ re-run for the leave-one-sequence-out part), then:
 Usage::
 
     python scripts/drift_eval.py /tmp/b21/dev --write docs/results.md
-    python scripts/drift_eval.py runs/bench-drift --loso-seeds 0-5 --write docs/results.md   # seeds 6-8 check the shipped models
+    python scripts/drift_eval.py runs/bench-drift --loso-seeds 0-5 --jobs 2 --write docs/results.md   # seeds 6-8 check the shipped models
     python scripts/drift_eval.py /tmp/b21/dev --target episodes --no-compare --no-synthetic   # one target, every fold
 
 The section between ``<!-- drift-eval:begin -->`` and ``<!-- drift-eval:end -->`` is replaced (appended
@@ -45,8 +45,56 @@ def _num(v: float, d: int = 2) -> str:
     return "—" if not np.isfinite(v) else f"{v:.{d}f}"
 
 
-def loso_tables(runs, rng, target: str | None = None) -> list[str]:
-    from covviz.diagnosis.calibrate import BASELINES, loso, summarise
+_RUNS: list = []  # a worker's runs (set once per process by _init_worker)
+
+
+def _init_worker(runs) -> None:
+    global _RUNS
+    _RUNS = runs
+
+
+def _loso_job(job):
+    """One tracker's leave-one-sequence-out (:func:`covviz.diagnosis.calibrate.loso`), on one thread."""
+    from covviz.diagnosis.calibrate import loso
+    from covviz.threads import limit_threads
+
+    tr, target = job
+    t0 = time.perf_counter()
+    with limit_threads(1):
+        res = loso(_RUNS, tr, target=target)
+    return res, time.perf_counter() - t0
+
+
+def loso_all(runs, jobs: int = 1, targets=(None,)) -> dict:
+    """:func:`covviz.diagnosis.calibrate.loso` of every tracker of :data:`TRACKERS` in ``runs``, once per fit
+    target of ``targets`` (None: chosen in each fold), keyed ``(tracker, target)``; ``jobs`` processes at a time.
+
+    The folds are deterministic and use no random numbers (the bootstrap comes after, in
+    :func:`loso_tables`, in a fixed order), so the tables are the same for any ``jobs``.
+    """
+    todo = [(tr, t) for t in dict.fromkeys(targets) for tr in TRACKERS if any(r.tracker == tr for r in runs)]
+    out = {}
+    if jobs <= 1:
+        _init_worker(runs)
+        for job in todo:
+            out[job], dt = _loso_job(job)
+            print(f"  {job[0]}{'' if job[1] is None else ' (' + job[1] + ')'}: {dt:.1f} s", file=sys.stderr)
+        return out
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_init_worker,
+                             initargs=(runs,)) as pool:
+        futs = {job: pool.submit(_loso_job, job) for job in todo}  # TRACKERS lists the slowest first
+        for job, fut in futs.items():
+            out[job], dt = fut.result()
+            print(f"  {job[0]}{'' if job[1] is None else ' (' + job[1] + ')'}: {dt:.1f} s", file=sys.stderr)
+    return out
+
+
+def loso_tables(runs, rng, target: str | None = None, results: dict | None = None) -> list[str]:
+    """The main and the single-signal tables; ``results``: :func:`loso_all`'s, else computed here."""
+    from covviz.diagnosis.calibrate import BASELINES, summarise
 
     main = [
         ("| tracker | runs | losses | PR-AUC (off-track share) | alarms | precision [95% CI] | recall [95% CI] "
@@ -62,8 +110,7 @@ def loso_tables(runs, rng, target: str | None = None) -> list[str]:
     for tr in TRACKERS:
         if not any(r.tracker == tr for r in runs):
             continue
-        t0 = time.perf_counter()
-        res = loso(runs, tr, target=target)
+        res = (results or loso_all(runs, 1, (target,)))[tr, target]
         s = summarise(res["model"], rng)
         if not s:
             continue
@@ -72,7 +119,8 @@ def loso_tables(runs, rng, target: str | None = None) -> list[str]:
         found[tr]["_fp_by_sequence"] = dict(sorted(fp.items(), key=lambda kv: -kv[1]))
         ds = [f"{d}, {res['targets'][q].replace('_', '-')}" if target is None else d
               for q, d in res.get("designs", {}).items()]
-        design = "; ".join(f"{d} {ds.count(d)}" for d in sorted(set(ds), key=lambda d: -ds.count(d)))
+        # most chosen first, ties in the order of the folds (a set's order changes from process to process)
+        design = "; ".join(f"{d} {ds.count(d)}" for d in sorted(dict.fromkeys(ds), key=lambda d: -ds.count(d)))
         main.append(
             f"| `{tr}` | {s['runs']} | {s['losses']} | {_num(s['pr_auc'])} ({_pct(s['base_rate'])}) | {s['alarms']} "
             f"| {_pct(s['precision'])}{_ci(s['precision_ci'])} | {_pct(s['recall'])}{_ci(s['recall_ci'])} "
@@ -89,7 +137,6 @@ def loso_tables(runs, rng, target: str | None = None) -> list[str]:
                 f"| `{tr}` | {label} | {_num(b['pr_auc'])} | {b['alarms']} | {_pct(b['precision'])} "
                 f"| {_pct(b['recall'])} | {_num(b['lead'], 0)} | {_num(b['false_per_1000'], 1)} |"
             )
-        print(f"  {tr}: {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return main, base, found
 
 
@@ -201,6 +248,9 @@ def main(argv=None) -> int:
                     help="fit every fold's model to find this, instead of choosing it inside each fold")
     ap.add_argument("--no-compare", action="store_true",
                     help="skip the comparison with models fitted on every off-track frame (halves the time)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="trackers' leave-one-sequence-out runs at a time, each in a process of its own (default 1); "
+                         "the tables are the same for any value")
     ap.add_argument("--loso-seeds", default="0-5", type=_seeds,
                     help="the particle filters' seeds of the leave-one-sequence-out tables (default 0-5); the "
                          "shipped models are scored on every seed of the folder they were not fitted on")
@@ -213,10 +263,11 @@ def main(argv=None) -> int:
     ship_t, ship_fit, ship_test = shipped_table(every)
     rng = np.random.default_rng(args.seed)
     seeds = sorted({r.seed for r in runs if r.seed is not None})
-    main_t, base_t, found = loso_tables(runs, rng, target=args.target)
+    results = loso_all(runs, args.jobs, (args.target,) if args.no_compare else (args.target, "off_track"))
+    main_t, base_t, found = loso_tables(runs, rng, target=args.target, results=results)
     compare = []
     if not args.no_compare:
-        old_t, _, _ = loso_tables(runs, np.random.default_rng(args.seed), target="off_track")
+        old_t, _, _ = loso_tables(runs, np.random.default_rng(args.seed), target="off_track", results=results)
         compare = [
             ("**What the model is fitted to find.** Each fold above chose, with the design, between the drift "
              "episodes — each loss's frames from 10 before its drift began to 5 after it (where an alarm is "

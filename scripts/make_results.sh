@@ -21,5 +21,5 @@ covviz report "$RUNS" --out docs/results.md --append "$RUNS-ablation/ablation.md
 # seeds 0-5, and the shipped models checked on seeds 6-8 (fitted and chosen without them), appended as its own section.
 covviz bench "$ROOT" --trackers manifold,manifold-paper,ipca,csrt,kcf,mil --seeds 9 --jobs 2 --out "$RUNS-drift" --no-report
 covviz calibrate "$RUNS-drift" --seeds 0-5 --all-families covviz/diagnosis/models
-python scripts/drift_eval.py "$RUNS-drift" --loso-seeds 0-5 --write docs/results.md
+python scripts/drift_eval.py "$RUNS-drift" --loso-seeds 0-5 --jobs 2 --write docs/results.md
 echo "wrote docs/results.md and docs/img/bench_*.png from $RUNS"
