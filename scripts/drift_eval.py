@@ -72,22 +72,24 @@ def loso_all(runs, jobs: int = 1, targets=(None,)) -> dict:
     The folds are deterministic and use no random numbers (the bootstrap comes after, in
     :func:`loso_tables`, in a fixed order), so the tables are the same for any ``jobs``.
     """
-    todo = [(tr, t) for t in dict.fromkeys(targets) for tr in TRACKERS if any(r.tracker == tr for r in runs)]
-    out = {}
-    if jobs <= 1:
-        _init_worker(runs)
-        for job in todo:
-            out[job], dt = _loso_job(job)
-            print(f"  {job[0]}{'' if job[1] is None else ' (' + job[1] + ')'}: {dt:.1f} s", file=sys.stderr)
-        return out
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
+    from contextlib import nullcontext
 
-    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_init_worker,
-                             initargs=(runs,)) as pool:
-        futs = {job: pool.submit(_loso_job, job) for job in todo}  # TRACKERS lists the slowest first
-        for job, fut in futs.items():
-            out[job], dt = fut.result()
+    todo = [(tr, t) for t in dict.fromkeys(targets) for tr in TRACKERS if any(r.tracker == tr for r in runs)]
+    if jobs <= 1:
+        _init_worker(runs)
+    out = {}
+    with (nullcontext() if jobs <= 1 else
+          ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_init_worker,
+                              initargs=(runs,))) as pool:
+        if pool is None:
+            done = map(_loso_job, todo)
+        else:  # all submitted at once (TRACKERS lists the slowest first), reported in order as they finish
+            futs = [pool.submit(_loso_job, j) for j in todo]
+            done = (f.result() for f in futs)
+        for job, (res, dt) in zip(todo, done):
+            out[job] = res
             print(f"  {job[0]}{'' if job[1] is None else ' (' + job[1] + ')'}: {dt:.1f} s", file=sys.stderr)
     return out
 
@@ -107,10 +109,11 @@ def loso_tables(runs, rng, target: str | None = None, results: dict | None = Non
         "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     found: dict = {}
+    results = results or loso_all(runs, 1, (target,))
     for tr in TRACKERS:
         if not any(r.tracker == tr for r in runs):
             continue
-        res = (results or loso_all(runs, 1, (target,)))[tr, target]
+        res = results[tr, target]
         s = summarise(res["model"], rng)
         if not s:
             continue
@@ -233,9 +236,12 @@ def synthetic_alarms(seeds=range(10), frames: int = 300) -> tuple[list[str], int
 
 
 def _seeds(text: str) -> set:
-    from covviz.cli.calibrate import _seeds as parse
+    from covviz.diagnosis.calibrate import parse_seeds
 
-    return parse(text)
+    try:
+        return parse_seeds(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seeds like 0,1,2 or 0-2, got {text!r}") from None
 
 
 def main(argv=None) -> int:

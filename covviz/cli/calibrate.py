@@ -50,12 +50,10 @@ def detector_text(path: Path | None) -> str | None:
 
 
 def _seeds(text: str) -> set[int]:
+    from covviz.diagnosis.calibrate import parse_seeds
+
     try:
-        out: set[int] = set()
-        for part in text.split(","):
-            a, _, b = part.partition("-")
-            out.update(range(int(a), int(b or a) + 1))
-        return out
+        return parse_seeds(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected seeds like 0,1,2 or 0-2, got {text!r}") from None
 

@@ -73,6 +73,7 @@ __all__ = [
     "fit_target",
     "load_runs",
     "losses_of",
+    "parse_seeds",
     "score_alarms",
     "seed_list",
 ]
@@ -200,6 +201,15 @@ def load_runs(bench_dir, trackers=None, seeds=None) -> list[Run]:
         raise InputError(f"{root}: no results with drift signals and ground truth "
                          "(run 'covviz bench' on labelled sequences with this covviz first)")
     return runs
+
+
+def parse_seeds(text: str) -> set[int]:
+    """``"0-2,5"`` as ``{0, 1, 2, 5}`` (the inverse of :func:`seed_list`); ValueError on anything else."""
+    out: set[int] = set()
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out.update(range(int(a), int(b or a) + 1))
+    return out
 
 
 def seed_list(seeds, dash: str = "-") -> str:
