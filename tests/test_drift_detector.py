@@ -408,6 +408,7 @@ def test_describe_alarm():
                                  "colour lost 0.61 (gate 0.3)")
     a["drivers"] = []
     assert describe_alarm(a) == "frames 108–112: likely off track, p 0.67 (peak 0.75) — colour lost 0.61 (gate 0.3)"
+    assert describe_alarm(a, span=False) == "likely off track, p 0.67 (peak 0.75) — colour lost 0.61 (gate 0.3)"
 
 
 # --------------------------------------------------------------------------- #

@@ -615,8 +615,9 @@ class DriftWatch(Observer):
         return out
 
 
-def describe_alarm(a: dict) -> str:
-    """One line for a terminal: ``frames 63–80: likely off track, p 0.91 — FB error 0.4 box, ESS 0.01``.
+def describe_alarm(a: dict, span: bool = True) -> str:
+    """One line for a terminal: ``frames 63–80: likely off track, p 0.91 — FB error 0.4 box, ESS 0.01``
+    (``span`` False: without its frames, for a row that shows them already).
 
     The probability and the signals are those of the alarm's first frame, as in the recording's event
     for it; where the episode's probability rose higher later, its peak follows: ``p 0.80 (peak 0.91)``.
@@ -624,7 +625,7 @@ def describe_alarm(a: dict) -> str:
     of its window): ``ESS 0.01 (usually 0.31)``. A gated model's alarm ends with the colour that let it
     through: ``slip 0.52 box; colour lost 0.61 (gate 0.3)``.
     """
-    span = f"frame {a['frame']}" if a.get("until", a["frame"]) == a["frame"] else f"frames {a['frame']}–{a['until']}"
+    frames = f"frame {a['frame']}" if a.get("until", a["frame"]) == a["frame"] else f"frames {a['frame']}–{a['until']}"
     parts = []
     for k in a.get("drivers", [])[:2]:
         v = a["signals"].get(k)
@@ -638,7 +639,7 @@ def describe_alarm(a: dict) -> str:
     c = a["signals"].get("colour")
     if a.get("gate") is not None and c is not None and "colour" not in a.get("drivers", [])[:2]:
         gate = f"{'; ' if parts else ' — '}{LABELS['colour'][0]} {c:.2g} (gate {a['gate']:g})"
-    return f"{span}: likely off track, p {p}" + ("" if peak == p else f" (peak {peak})") + (
+    return f"{frames + ': ' if span else ''}likely off track, p {p}" + ("" if peak == p else f" (peak {peak})") + (
         " — " + ", ".join(parts) if parts else "") + gate
 
 
