@@ -42,3 +42,43 @@ def test_track_logs_the_drift_probability_and_alarm_rows(tmp_path, capsys):
     th = temporal[threshold_path("manifold")]["Scalars:scalars"]
     assert {f: v[-1] for f, v in th.items()} == {1: [0.4], 11: [0.4], 12: [0.4]}
     assert static[threshold_path("manifold")]["SeriesLines:names"] == ["alarm threshold"]
+    # The story strip's alarm lane: the alarm from frame 1 on (its probability never falls below the release).
+    from covviz.viz import paths as P
+
+    lane = temporal[P.TrackerPaths("manifold").story_lane("alarm")]["StateChange:state"]
+    assert {f: v[-1] for f, v in lane.items()} == {1: ["alarm"]}
+
+
+def test_the_story_alarm_lane_spans_each_alarm_until_its_hysteresis_releases_it(tmp_path):
+    """The recorder draws an alarm on the story strip from its first frame, and a gap from the frame the
+    watch stopped extending it (its probability fell below the release level)."""
+    from types import SimpleNamespace as NS
+
+    from viz_helpers import read_recording
+
+    from covviz.viz import paths as P
+    from covviz.viz.drift import DriftRecorder
+    from covviz.viz.sinks import attach_sinks, close_stream, new_recording
+
+    path = tmp_path / "lane.rrd"
+    stream = new_recording()
+    attach_sinks(stream, save=path)
+    rec = DriftRecorder(stream, series_seconds=None)
+    rec.on_start(NS(trackers=[NS(name="manifold")]), NS(drift=NS(threshold=lambda j: 0.6)))
+    # As DriftWatch does: an alarm raised on frame 3 and extended ("until") on frames 4 and 5; then a
+    # second one on frame 8, open at the end of the run.
+    first = {"frame": 3, "probability": 0.7, "signals": {}, "drivers": [], "until": 3, "peak": 0.7}
+    second = {**first, "frame": 8, "until": 8}
+    for i in range(9):
+        n = i + 1
+        if n in (4, 5):
+            first["until"] = n
+        if n == 9:
+            second["until"] = n
+        new = (first,) if n == 3 else (second,) if n == 8 else ()
+        rec.on_frame(NS(index=i, time=None), (), NS(drift_news=((0.65 if new else 0.2, new),)))
+    rec.on_end([], None)
+    close_stream(stream)
+    temporal, _ = read_recording(path)
+    lane = {f: v[-1] for f, v in temporal[P.TrackerPaths("manifold").story_lane("alarm")]["StateChange:state"].items()}
+    assert lane == {3: ["alarm"], 6: [], 8: ["alarm"]}

@@ -11,6 +11,8 @@ runs before it, on the same background thread in ``covviz track``). The two seri
                                         and the last: a flat line under the curve, in the IoU plot)
     trackers/<name>/events              TextLog: "drift alarm" rows (WARN)
     trackers/<name>/event_records       AnyValues: kind "alarm" (``covviz events`` reads them back)
+    trackers/<name>/story/alarm         StateChange: "alarm" from an alarm's first frame, a null state on the
+                                        frame its hysteresis releases it (the story strip's alarm lane)
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from covviz.diagnosis.detector import describe_alarm
 from covviz.records import frame_number
 from covviz.runner import Observer
 from covviz.viz import paths as P
+from covviz.viz import story
 from covviz.viz.description import viewer_safe
 from covviz.viz.series import RECORDER_EVERY, RECORDER_SECONDS, SeriesBuffer
 
@@ -52,12 +55,14 @@ class DriftRecorder(Observer):
         self.series = SeriesBuffer(stream, every=RECORDER_EVERY, seconds=series_seconds)
         self._paths: list[P.TrackerPaths] = []
         self._thresholds: list[float | None] = []
+        self._open: list[dict | None] = []  # per tracker, the alarm the story's alarm lane shows now
         self._last = None
 
     def on_start(self, start, found) -> None:
         self._paths = [P.TrackerPaths(P.tracker_entity(info.name)) for info in start.trackers]
         view = found.drift
         self._thresholds = [None if view is None else view.threshold(j) for j in range(len(self._paths))]
+        self._open = [None] * len(self._paths)
         for paths, th in zip(self._paths, self._thresholds):
             if th is not None:
                 self.stream.log(threshold_path(paths.name), rr.SeriesLines(
@@ -68,15 +73,22 @@ class DriftRecorder(Observer):
         self._last = frame
         self.series.at(frame_number(frame.index), frame.time)
         timed = False
-        for paths, th, (p, new) in zip(self._paths, self._thresholds, found.drift_news):
+        n = frame_number(frame.index)
+        for j, (paths, th, (p, new)) in enumerate(zip(self._paths, self._thresholds, found.drift_news)):
             if p is None:
                 continue
             self.series.add(probability_path(paths.name), p)
             if th is not None and frame.index % THRESHOLD_EVERY == 0:
                 self.series.add(threshold_path(paths.name), th)
-            if new and not timed:
-                P.set_frame_time(rec, frame)  # this thread's own time, for the alarms' rows
+            # The watch extends an open alarm's "until" on every frame its probability stays above the release
+            # level; a frame past it is the one the hysteresis released it on.
+            released = self._open[j] is not None and self._open[j]["until"] < n
+            if (new or released) and not timed:
+                P.set_frame_time(rec, frame)  # this thread's own time, for the alarms' rows and lane
                 timed = True
+            if released:
+                rec.log(paths.story_lane("alarm"), story.clear_state())
+                self._open[j] = None
             for a in new:
                 # The row's frame column says where; the body leads with what (its width cuts the end off).
                 text = f"drift alarm: {describe_alarm(a, span=False)} (label-free)"
@@ -85,6 +97,8 @@ class DriftRecorder(Observer):
                 rec.log(paths.event_records, rr.AnyValues(
                     tracker=[paths.name], kind=["alarm"], frame_number=[a["frame"]], level=["WARN"],
                     text=[viewer_safe(text)], cause=["drift"], details=[json.dumps(a, default=float)]))
+                rec.log(paths.story_lane("alarm"), rr.StateChange(state="alarm"))
+                self._open[j] = a
 
         self.series.tick()
 

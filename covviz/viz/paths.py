@@ -41,7 +41,7 @@ The entity tree::
                                      estimate failure / lost / no truth (StateConfiguration static)
     trackers/<name>/story/verdict    StateChange: each loss's counterfactual verdict, from the loss to the
                                      end of its replay
-    trackers/<name>/story/alarm      StateChange: label-free drift alarms (an empty lane until they land)
+    trackers/<name>/story/alarm      StateChange: label-free drift alarms, each from its first frame to its release
     layout                           AnyValues (static): what the blueprint was built from (``snapshot --tracker``)
     logger/time                      Scalars: milliseconds the logger spent on the frame
 

@@ -4,7 +4,8 @@ The strip reads the whole run at a glance: per tracker a ``track`` lane (on
 track, or which part of the filter failed on the frame — model, search,
 estimate — or lost), a ``verdict`` lane (each loss's counterfactual verdict,
 from the loss to the end of its replay) and an ``alarm`` lane (label-free
-drift alarms; empty until the recorder is given some). Each lane is one
+drift alarms, from each alarm's first frame to the frame its hysteresis releases it; drawn by
+:class:`covviz.viz.drift.DriftRecorder`, empty in a recording without the detector). Each lane is one
 entity (:meth:`covviz.viz.paths.TrackerPaths.story_lane`) with a static
 ``StateConfiguration`` (labels, colours) and a ``StateChange`` on every frame
 where its state changes; Rerun's ``StateTimelineView`` draws them as coloured
