@@ -14,7 +14,8 @@ Usage:
 
 The variants (``VARIANTS``): the default of before issue 14 (the quadrant term:
 ``NEW_TERMS_OFF``), that plus each new term alone, all of them (the default,
-``ManifoldConfig()``), the default without the gradient floor, the default with the paper's
+``ManifoldConfig()``), the default without the gradient floor, the default without the
+position step of the reported box (``ncc_rate`` 0: the filter's own estimate), the default with the paper's
 constant noise (no adaptive diffusion, issue 24), ``manifold-paper``
 (``PAPER_LIKELIHOOD``), and the default with the motion prior from the image
 (``flow_share``, off by default: docs/tuning.md). ``--cost-only`` times ``update()``
@@ -50,6 +51,7 @@ VARIANTS: dict[str, tuple[str, str, dict]] = {
     "colour": ("+ colour term", "manifold", {**NEW_TERMS_OFF, "colour_weight": DEFAULT.observation.colour_weight}),
     "default": ("both: the default", "manifold", {}),
     "nofloor": ("the default, gradient floor off", "manifold", {"grad_floor": 0.0}),
+    "noncc": ("the default, position step off (ncc_rate 0)", "manifold", {"ncc_rate": 0.0}),
     "static": ("the default, constant noise (no adaptive diffusion)", "manifold",
                {"adaptive": {"enabled": False}}),
     "paper": ("manifold-paper", "manifold-paper", {}),
