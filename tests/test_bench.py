@@ -517,3 +517,30 @@ def test_report_counts_losses_by_cause_and_scores_the_suspects(results):
     assert "| alpha | " in section and "occlusion 1" in section
     # Suspects: frame 4 is in [3 - 10, 5 + 5] (right), frame 40 is not: precision 50%, the loss found.
     assert "| `manifold` | 2 | 50% | 1 | 100% |" in section
+
+
+def test_backfilled_colour_is_the_signal_the_run_logged(benched, root, tmp_path):
+    """scripts/backfill_colour.py on results that have the signal: the same values from the saved boxes
+    (exactly for whole-pixel boxes; the manifold tracker's, saved to two decimals, may round an edge the
+    other way where it sits within 0.005 px of a half pixel)."""
+    from covviz.diagnosis.backfill import backfill_colour
+
+    dst = tmp_path / "again"
+    shutil.copytree(benched, dst)
+    assert backfill_colour(dst, root) == (0, N_JOBS)  # every result has it: kept
+    assert backfill_colour(dst, root, force=True) == (N_JOBS, 0)
+    same = total = 0
+    for js in sorted(benched.glob("*/*.json")):
+        doc = json.loads(js.read_text())
+        if "diagnosis" not in doc:
+            continue
+        a = doc["diagnosis"]["signals"]["colour"]
+        again = json.loads((dst / js.relative_to(benched)).read_text())
+        b = again["diagnosis"]["signals"]["colour"]
+        assert again["diagnosis"]["backfilled"] == {"colour": "scripts/backfill_colour.py"}
+        assert len(a) == len(b) and a[0] is None and b[0] is None
+        if doc["tracker"] != "manifold":
+            assert a == b
+        same += sum(x == y for x, y in zip(a, b))
+        total += len(a)
+    assert same >= 0.95 * total

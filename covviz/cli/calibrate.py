@@ -25,14 +25,16 @@ whose alarms hold up best on sequences held out in turn, with the design.
 It is a logistic regression on the signals, in one of three feature designs:
 their levels and short history; their changes (each signal's robust z-score against
 its own last 30 frames, which carries over between scenes); or one signal alone
-(the flow gap, the slip, the FB error, PSR, ESS or the distance z-score: its own threshold
-alarm, with a calibrated probability). --design auto picks the candidate whose alarms
-hold up best on sequences held out in turn; the alarm threshold and hysteresis are
-chosen on the same runs (see covviz/diagnosis/calibrate.py).
+(the flow gap, the slip, the FB error, PSR, ESS, the distance z-score or the colour: its
+own threshold alarm, with a calibrated probability). --design auto picks the candidate
+whose alarms hold up best on sequences held out in turn; the alarm threshold and
+hysteresis are chosen on the same runs, and then the colour gate (no alarm while the box
+stands out from its surroundings as the target did), if one finds more losses or as many
+with fewer false alarms there (see covviz/diagnosis/calibrate.py).
 """
 
 
-_TROUBLE = ("flow_gap", "slip", "fb_error", "psr", "ess", "dmin_z")  # calibrate.TROUBLE, without importing scikit-learn's caller
+_TROUBLE = ("flow_gap", "slip", "fb_error", "psr", "ess", "dmin_z", "colour")  # calibrate.TROUBLE, without importing scikit-learn's caller
 
 
 def add_detector_arg(p: argparse.ArgumentParser) -> None:
@@ -116,4 +118,5 @@ def _describe(m) -> str:
     design = f"{m.design} design ({m.signals[0]})" if m.design == "signal" else f"{m.design} design"
     return (f"{design}, {f['runs']} runs, {f['frames']} frames ({f['positive_frames']} {found}), "
             f"{f['losses']} losses; "
-            f"alarm at p >= {m.alarm.threshold:.3f}, released below {m.alarm.release:.3f}")
+            f"alarm at p >= {m.alarm.threshold:.3f}, released below {m.alarm.release:.3f}"
+            + ("" if m.gate is None else f", silenced while colour < {m.gate:g}"))

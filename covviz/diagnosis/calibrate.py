@@ -48,6 +48,7 @@ from covviz.diagnosis.detector import (
     COOLDOWN,
     DESIGNS,
     FAMILIES,
+    GATE_SIGNAL,
     DriftModel,
     Hysteresis,
     family_of,
@@ -98,12 +99,18 @@ MIN_PRECISION = 0.5
 #: The issue's four, the flow gap (the strongest single signal on the dev runs) and the slip (the flow gap
 #: summed as a vector over recent frames).
 BASELINES = {"FB error": ("fb_error", 1.0), "PSR": ("psr", -1.0), "ESS": ("ess", -1.0), "distance z": ("dmin_z", 1.0),
-             "flow gap": ("flow_gap", 1.0), "slip": ("slip", 1.0)}
+             "flow gap": ("flow_gap", 1.0), "slip": ("slip", 1.0), "colour": ("colour", 1.0)}
 #: The direction of trouble of each signal a ``signal`` design may read (from :data:`BASELINES`).
 TROUBLE = {sig: sign for sig, sign in BASELINES.values()}
 #: What a ``signal`` design is fitted on: its alarms do not depend on it (the map is monotone), and with
 #: the off-track frames its probability reads as the chance of being off track at that level.
 SIGNAL_TARGET = "off_track"
+#: Families whose feature design is fixed instead of chosen by :func:`choose_fit` (by :func:`fit_design` with
+#: no design given, and in every fold of :func:`loso`); the gate and the alarm rule are still fitted. Why
+#: each is fixed: docs/tuning.md.
+FAMILY_DESIGNS: dict[str, str] = {}
+#: The gates :func:`choose_gate` weighs (levels of the ``colour`` signal: the share of its first contrast lost).
+GATE_LEVELS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 
 
 @dataclass(frozen=True, eq=False)
@@ -369,6 +376,49 @@ def _rule_counts():
     return numba.njit(cache=True, nogil=True)(_rule_counts_py)
 
 
+def _counts(scores: list[np.ndarray], runs: list[Run], rules: list[Hysteresis]) -> np.ndarray:
+    """``(tp, fp, found)`` of each rule's alarms on ``scores``, summed over ``runs`` (one compiled pass per run)."""
+    counts = np.zeros((len(rules), 3), dtype=np.int64)
+    kernel = _rule_counts()
+    ths = np.array([r.threshold for r in rules], dtype=np.float64)
+    rels = np.array([r.release for r in rules], dtype=np.float64)
+    cooldowns = {r.cooldown for r in rules}
+    if len(cooldowns) > 1:
+        raise ValueError("the rules must share one cooldown")
+    cooldown = cooldowns.pop() if cooldowns else COOLDOWN
+    for s, r in zip(scores, runs):
+        v = np.asarray(s, dtype=np.float64)
+        v = np.where(np.isfinite(v), v, -np.inf)
+        w = np.array(loss_windows(r), dtype=np.int64).reshape(-1, 3)
+        out = np.zeros((len(rules), 3), dtype=np.int64)
+        kernel(v, ths, rels, cooldown, w[:, 0].copy(), w[:, 1].copy(), np.asarray(r.iou, dtype=np.float64),
+               OFF_TRACK_IOU, out)
+        counts += out
+    return counts
+
+
+def _key_of(counts, runs: list[Run]) -> tuple:
+    tp, fp, found = (int(v) for v in counts)
+    return _rule_key({"tp": tp, "fp": fp, "found": found, "losses": sum(len(r.losses) for r in runs)})
+
+
+def choose_gate(probs: list[np.ndarray], runs: list[Run], rule: Hysteresis) -> float | None:
+    """The colour gate (:attr:`~covviz.diagnosis.detector.DriftModel.gate`) for a model whose alarm ``rule`` is
+    chosen: of :data:`GATE_LEVELS`, the one whose gated alarms on ``runs`` rank first by the alarm rule's own
+    order (:func:`_rule_key`); None (no gate) unless one ranks strictly above the ungated alarms, or where the
+    runs have no colour signal."""
+    col = SIGNALS.index(GATE_SIGNAL)
+    if not any(np.isfinite(r.rows[:, col]).any() for r in runs):
+        return None
+    best, best_key = None, _key_of(_counts(probs, runs, [rule])[0], runs)
+    for g in GATE_LEVELS:
+        gated = [np.where(r.rows[:, col] < g, 0.0, p) for p, r in zip(probs, runs)]
+        key = _key_of(_counts(gated, runs, [rule])[0], runs)
+        if key > best_key:
+            best, best_key = g, key
+    return best
+
+
 def choose_alarm(scores: list[np.ndarray], runs: list[Run]) -> Hysteresis:
     """The alarm rule for a score on training runs: thresholds at quantiles of their scores, releases below.
 
@@ -387,18 +437,7 @@ def choose_alarm(scores: list[np.ndarray], runs: list[Run]) -> Hysteresis:
         for off in RELEASE_OFFSETS:
             rel = float(np.quantile(allv, max(q - off, 0.0)))
             rules.append(Hysteresis(th, min(rel, th), COOLDOWN))
-    counts = np.zeros((len(rules), 3), dtype=np.int64)
-    kernel = _rule_counts()
-    ths = np.array([r.threshold for r in rules])
-    rels = np.array([r.release for r in rules])
-    for s, r in zip(scores, runs):
-        v = np.asarray(s, dtype=np.float64)
-        v = np.where(np.isfinite(v), v, -np.inf)
-        w = np.array(loss_windows(r), dtype=np.int64).reshape(-1, 3)
-        out = np.zeros((len(rules), 3), dtype=np.int64)
-        kernel(v, ths, rels, COOLDOWN, w[:, 0].copy(), w[:, 1].copy(), np.asarray(r.iou, dtype=np.float64),
-               OFF_TRACK_IOU, out)
-        counts += out
+    counts = _counts(scores, runs, rules)
     losses = sum(len(r.losses) for r in runs)
     best, best_key = None, None
     for rule, (tp, fp, found) in zip(rules, counts.tolist()):
@@ -480,6 +519,8 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
     """
     targets = tuple(targets)
     designs = candidates(signals) if designs is None else tuple(designs)
+    if len(designs) == 1 and len(targets_of(designs[0], targets)) == 1:  # nothing to choose
+        return designs[0], targets_of(designs[0], targets)[0], {}
     fallback = ("changes" if "changes" in designs else designs[0]), targets[0], {}
     seqs = sorted({r.sequence for r in runs})
     if len(seqs) < 2:
@@ -498,7 +539,8 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
                                   target=t)
                 except InputError:
                     continue
-                counts += [score_alarms(alarm_frames(m.probability(feats[d][i]), m.alarm), runs[i]) for i in te]
+                counts += [score_alarms(alarm_frames(m.gated(m.probability(feats[d][i]), runs[i].rows), m.alarm),
+                                        runs[i]) for i in te]
             if not counts:
                 continue
             c = _pool(counts)
@@ -564,6 +606,7 @@ def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray
                        Hysteresis(np.inf, np.inf, COOLDOWN), design=design)
     probs = [model.probability(f) for f in feats]
     rule = choose_alarm(probs, runs)
+    gate = choose_gate(probs, runs, rule)
     info = {
         "off_track_iou": OFF_TRACK_IOU,
         "target": target,
@@ -578,7 +621,7 @@ def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray
         "sklearn": skv,
         **(fit_info or {}),
     }
-    return DriftModel(family, signals, center, scale, model.coef, model.intercept, rule, info, design)
+    return DriftModel(family, signals, center, scale, model.coef, model.intercept, rule, info, design, gate)
 
 
 def family_runs(runs: list[Run], family: str) -> list[Run]:
@@ -593,10 +636,12 @@ def fit_design(runs: list[Run], family: str, signals=None, fit_info: dict | None
     """A model of the design and fit target :func:`choose_fit` picks on ``runs`` (those given are kept),
     fitted on all of them.
 
-    ``design``: None (every candidate of :func:`candidates`), a design (``"signal"``: the best single
-    signal) or one candidate key (``"signal:flow_gap"``).
+    ``design``: None (the family's fixed design, :data:`FAMILY_DESIGNS`, else every candidate of
+    :func:`candidates`), a design (``"signal"``: the best single signal) or one candidate key
+    (``"signal:flow_gap"``).
     """
     signals = tuple(signals or signals_for(sorted({r.tracker for r in runs})))
+    design = FAMILY_DESIGNS.get(family) if design is None else design
     designs = candidates(signals, DESIGNS if design is None else (design,))
     if not designs:
         raise InputError(f"no single signal of {', '.join(TROUBLE)} among this family's signals")
@@ -630,17 +675,20 @@ def fit_families(runs: list[Run], fit_info: dict | None = None, design: str | No
 # --------------------------------------------------------------------------- #
 # leave-one-sequence-out evaluation
 # --------------------------------------------------------------------------- #
-def loso(runs: list[Run], tracker: str, family: str | None = None, target: str | None = None) -> dict:
+def loso(runs: list[Run], tracker: str, family: str | None = None, target: str | None = None,
+         design: str | None = None) -> dict:
     """Leave-one-sequence-out scores of ``tracker``: the model of its family and each baseline.
 
-    For each sequence, the model's feature design and (``target`` None) its fit target are chosen
-    (:func:`choose_fit`, nested inside the fold), the model fitted and its alarm rule chosen, on the
+    For each sequence, the model's feature design (``design``, else the family's fixed one of
+    :data:`FAMILY_DESIGNS`, else chosen) and (``target`` None) its fit target are chosen
+    (:func:`choose_fit`, nested inside the fold), the model fitted and its alarm rule and gate chosen, on the
     family's runs of the other sequences only, and so is each baseline's threshold; the held-out
     sequence's runs of ``tracker`` are then scored. Returns, per method (``model`` and each of
     :data:`BASELINES`), the held-out scores and alarm counts of every run, keyed by sequence, and under
     ``"designs"`` and ``"targets"`` what each fold chose.
     """
     family = family or family_of(tracker)
+    fixed = FAMILY_DESIGNS.get(family) if design is None else design
     pool = family_runs(runs, family)
     signals = signals_for(sorted({r.tracker for r in pool}))
     feats = {d: dict(zip(map(id, pool), _design(pool, signals, d))) for d in candidates(signals)}
@@ -652,7 +700,7 @@ def loso(runs: list[Run], tracker: str, family: str | None = None, target: str |
         if not train or not test:
             continue
         design, tgt, _ = choose_fit(train, family, signals, {d: [feats[d][id(r)] for r in train] for d in feats},
-                                    TARGETS if target is None else (target,))
+                                    TARGETS if target is None else (target,), None if fixed is None else (fixed,))
         try:
             m = fit_model(train, family, signals, [feats[design][id(r)] for r in train], design=design, target=tgt)
         except InputError:
@@ -670,7 +718,7 @@ def loso(runs: list[Run], tracker: str, family: str | None = None, target: str |
 def held_out_model(model: DriftModel, feats: list[np.ndarray], test: list[Run]) -> list:
     """``(probability, alarm counts, run)`` of each held-out run, from its features ``feats`` of the model's design."""
     return [(p, score_alarms(alarm_frames(p, model.alarm), r), r) for f, r in zip(feats, test)
-            for p in [model.probability(f)]]
+            for p in [model.gated(model.probability(f), r.rows)]]
 
 
 def held_out_signal(name: str, train: list[Run], test: list[Run]) -> list | None:

@@ -29,6 +29,14 @@ rule (threshold, release, cooldown). Two designs:
   :func:`~covviz.diagnosis.calibrate.choose_fit` weighs each signal of
   :data:`covviz.diagnosis.calibrate.BASELINES` beside the two models, by the same held-out rule.
 
+Any design may carry a **colour gate** (:attr:`DriftModel.gate`): on a frame whose ``colour`` signal (the
+box's lost colour contrast against its surroundings, :mod:`covviz.diagnosis.signals`) is below the gate,
+the box still stands out from its surroundings as the target did, and the probability is 0 there. The
+motion signals fire on a box that shakes or snaps back onto its target as on one that slides off it; the
+colour tells them apart. :func:`~covviz.diagnosis.calibrate.fit_model` chooses the gate (or none) on the
+training runs with the alarm rule already fixed, by the same rule: a gate only silences frames (an alarm it
+silences may still be raised later in the episode, once the colour agrees).
+
 Shipped models, one per tracker family with a generic fallback, are package data under
 ``covviz/diagnosis/models/`` (:func:`shipped_model`); ``covviz calibrate``
 (:mod:`covviz.diagnosis.calibrate`) writes new ones.
@@ -80,8 +88,8 @@ __all__ = [
 FORMAT = "covviz-drift-model"
 #: Version 2 adds ``design``; a version-1 file is read as the ``levels`` design. Version 3 adds the
 #: ``signal`` design (a version-2 reader would call such a file broken).
-VERSION = 3
-READS = (1, 2, 3)
+VERSION = 4
+READS = (1, 2, 3, 4)
 #: The feature designs (module docstring).
 DESIGNS = ("levels", "changes", "signal")
 #: Tracker families with a model of their own; any other tracker gets the ``generic`` one.
@@ -104,6 +112,8 @@ CHANGE_LAG = 5
 CHANGE_MIN = 10
 #: Frames the probability must stay below the release level before an episode ends.
 COOLDOWN = 5
+#: The signal a model's gate reads (:attr:`DriftModel.gate`).
+GATE_SIGNAL = "colour"
 #: Signal names as a person reads them in a summary line, with their unit.
 LABELS = {
     "fb_error": ("FB error", " box"), "fb_fail": ("FB lost points", ""), "flow_gap": ("flow gap", " box"),
@@ -323,6 +333,7 @@ class DriftModel:
     alarm: Hysteresis
     fit: dict = field(default_factory=dict)
     design: str = "levels"
+    gate: float | None = None  # probability 0 where the colour signal is below this (None: no gate)
 
     def __post_init__(self):
         if self.design not in DESIGNS:
@@ -351,6 +362,14 @@ class DriftModel:
         z = np.where(np.isfinite(z), z, 0.0)
         return 1.0 / (1.0 + np.exp(-(z @ self.coef + self.intercept)))
 
+    def gated(self, p: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """``p`` (one value per row of :data:`SIGNALS` ``rows``) with the gate applied: 0 where the colour signal
+        is below :attr:`gate` (a missing colour gates nothing)."""
+        if self.gate is None:
+            return p
+        c = np.asarray(rows, dtype=np.float64)[..., SIGNALS.index(GATE_SIGNAL)]
+        return np.where(c < self.gate, 0.0, p)
+
     def contributions(self, feats: np.ndarray) -> dict[str, float]:
         """Each signal's share of the logit on one frame (its features summed), by name."""
         z = (np.asarray(feats, dtype=np.float64) - self.center) / self.scale
@@ -362,7 +381,8 @@ class DriftModel:
 
     def predict_run(self, rows: np.ndarray) -> np.ndarray:
         """Probabilities of every frame of a run from its :data:`SIGNALS` rows ``(n, len(SIGNALS))``."""
-        return self.probability(history_features(np.asarray(rows)[:, self.columns], self.signals, self.design))
+        rows = np.asarray(rows)
+        return self.gated(self.probability(history_features(rows[:, self.columns], self.signals, self.design)), rows)
 
     # ------------------------------------------------------------------ #
     def as_dict(self) -> dict:
@@ -380,6 +400,7 @@ class DriftModel:
             "intercept": float(f"{self.intercept:.6g}"),
             "alarm": {"threshold": self.alarm.threshold, "release": self.alarm.release,
                       "cooldown": self.alarm.cooldown},
+            "gate": None if self.gate is None else {"signal": GATE_SIGNAL, "below": self.gate},
             "fit": self.fit,
         }
 
@@ -398,6 +419,9 @@ class DriftModel:
                              f"{', '.join(map(str, READS))}")
         try:
             a = d["alarm"]
+            g = d.get("gate")
+            if g is not None and g.get("signal") != GATE_SIGNAL:
+                raise ValueError(f"a gate reads {GATE_SIGNAL!r}, not {g.get('signal')!r}")
             return cls(
                 family=str(d["family"]),
                 signals=tuple(d["signals"]),
@@ -408,6 +432,7 @@ class DriftModel:
                 alarm=Hysteresis(float(a["threshold"]), float(a["release"]), int(a.get("cooldown", COOLDOWN))),
                 fit=dict(d.get("fit", {})),
                 design=str(d.get("design", "levels")),
+                gate=None if g is None else float(g["below"]),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{where}: broken drift model ({exc}); re-create it with 'covviz calibrate'") from None
@@ -525,7 +550,7 @@ class DriftWatch(Observer):
                 continue
             row = self.signals.states[j].rows[-1]
             feats = w.history.push(row[w.model.columns])
-            p = float(w.model.probability(feats[None])[0])
+            p = float(w.model.gated(w.model.probability(feats[None]), row[None])[0])
             w.p.append(p)
             if w.alarm.active and w.alarms:
                 w.alarms[-1]["until"] = int(frame.index) + 1 if p >= w.model.alarm.release else w.alarms[-1]["until"]

@@ -18,6 +18,15 @@ Any tracker (OpenCV's included):
   look-alike moves a little more than its content on every frame, always the same way, so
   the slide adds up here where each frame's ``flow_gap`` stays small; the jitter of a box
   on track cancels;
+* ``colour`` — how much of its colour contrast with its surroundings the box has lost:
+  ``1 − c_t / c_ref``, where ``c_t`` is the mean of ``P − ½`` inside the box minus its mean over the
+  ring around it (the box grown by :data:`covviz.model.fgbg.RING_PAD` of its mean side on every side,
+  both clipped to the frame), ``P`` each pixel's foreground probability under colour histograms of the
+  *initial* box and its ring (:func:`covviz.model.fgbg.init_colour_model`, fixed for the run), and
+  ``c_ref`` the median of ``c`` over the :attr:`SignalConfig.colour_ref` frames after the first (over
+  those so far before then; floored at :data:`COLOUR_FLOOR`). 0: the box stands out from its
+  surroundings as the target did; 1 and more: it is no more target-coloured than they are
+  (:class:`ColourSignal`);
 * ``motion`` — the box centre's motion, box sizes; ``scale_rate`` — ``|log|`` of
   the box size's change over :attr:`SignalConfig.scale_lag` frames;
 * ``d_first`` / ``d_recent`` — the log-Euclidean distance of the box content's
@@ -54,13 +63,16 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from covviz.model import fgbg
 from covviz.model.adaptive import robust_z
 from covviz.model.flow import FB_GRID, LK_LEVELS, LK_WINDOW, ROI_MARGIN, gray8, median_flow, trusted
 
-__all__ = ["GENERIC_SIGNALS", "PARTICLE_SIGNALS", "SIGNALS", "SignalConfig", "SignalObserver", "fb_flow", "psr", "slip"]
+__all__ = ["GENERIC_SIGNALS", "PARTICLE_SIGNALS", "SIGNALS", "ColourSignal", "SignalConfig", "SignalObserver",
+           "colour_contrast", "fb_flow", "psr", "slip"]
 
 #: Signals of every tracker.
-GENERIC_SIGNALS = ("fb_error", "fb_fail", "flow_gap", "motion", "scale_rate", "d_first", "d_recent", "psr", "slip")
+GENERIC_SIGNALS = ("fb_error", "fb_fail", "flow_gap", "motion", "scale_rate", "d_first", "d_recent", "psr", "slip",
+                   "colour")
 #: Signals of particle filters only (``nan`` for the others).
 PARTICLE_SIGNALS = ("ess", "dmin_z", "mode_mass", "cloud_gap")
 #: Every signal, in the order they are saved.
@@ -88,6 +100,11 @@ SCALE_LAG = 5
 #: Frames whose box-against-content motion ``slip`` sums (5: of 5 / 10 / 20, the best alarm alone when it was
 #: measured offline on the dev runs' boxes, ``docs/tuning.md``).
 SLIP_FRAMES = 5
+#: Frames after the first whose median colour contrast is ``colour``'s reference ...
+COLOUR_REF = 10
+#: ... floored here (a target whose colours never stood out: ``colour`` stays near 1 - c / floor, unusable
+#: but finite).
+COLOUR_FLOOR = 1e-3
 
 
 @dataclass(frozen=True)
@@ -108,14 +125,15 @@ class SignalConfig:
     spread_floor: float = SPREAD_FLOOR
     scale_lag: int = SCALE_LAG
     slip_frames: int = SLIP_FRAMES
+    colour_ref: int = COLOUR_REF
 
     def __post_init__(self):
         if self.fb_grid < 2 or self.lk_window < 3 or self.lk_levels < 0:
             raise ValueError("need fb_grid >= 2, lk_window >= 3, lk_levels >= 0")
         if self.recent < 1 or self.z_window < self.z_min or self.z_min < 2 or self.scale_lag < 1:
             raise ValueError("need recent >= 1, z_window >= z_min >= 2, scale_lag >= 1")
-        if self.slip_frames < 1:
-            raise ValueError("need slip_frames >= 1")
+        if self.slip_frames < 1 or self.colour_ref < 1:
+            raise ValueError("need slip_frames >= 1 and colour_ref >= 1")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -199,6 +217,52 @@ def psr(d: np.ndarray, peak: int, side: np.ndarray) -> float:
     return float((s.mean() - d[peak]) / (s.std() + 1e-6))
 
 
+def colour_contrast(frame: np.ndarray, lut: np.ndarray, grey: bool, box) -> float:
+    """Mean of ``lut`` (``P − ½`` per colour bin, :func:`covviz.model.fgbg.foreground_lut`) over ``box``'s pixels
+    minus its mean over the ring around it (the box grown by :data:`covviz.model.fgbg.RING_PAD` of its mean
+    side on every side); both clipped to the frame, edges rounded to whole pixels. ``nan`` if the box holds
+    no pixel; an empty ring counts 0."""
+    x, y, w, h = (float(v) for v in box)
+    if not (np.isfinite([x, y, w, h]).all() and w > 0 and h > 0):
+        return float("nan")
+    H, W = np.shape(frame)[:2]
+    pad = fgbg.RING_PAD * (w + h) / 2
+    X0, X1 = (int(np.clip(np.rint(v), 0, W)) for v in (x - pad, x + w + pad))
+    Y0, Y1 = (int(np.clip(np.rint(v), 0, H)) for v in (y - pad, y + h + pad))
+    x0, x1 = (int(np.clip(np.rint(v), X0, X1)) for v in (x, x + w))
+    y0, y1 = (int(np.clip(np.rint(v), Y0, Y1)) for v in (y, y + h))
+    a_in = (x1 - x0) * (y1 - y0)
+    if a_in <= 0:
+        return float("nan")
+    P = lut[fgbg.colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], grey)]
+    s_in = float(P[y0 - Y0 : y1 - Y0, x0 - X0 : x1 - X0].sum())
+    ring = (X1 - X0) * (Y1 - Y0) - a_in
+    return s_in / a_in - ((float(P.sum()) - s_in) / ring if ring > 0 else 0.0)
+
+
+class ColourSignal:
+    """``colour`` of one tracker, frame by frame (module docstring): :meth:`step` with each frame and box,
+    the first being the initial box. Its own class so that saved boxes can be scored the same way."""
+
+    def __init__(self, ref_frames: int = COLOUR_REF):
+        self.ref_frames = ref_frames
+        self.lut: np.ndarray | None = None
+        self.grey = False
+        self.ref: list[float] = []
+
+    def step(self, image: np.ndarray, box) -> float:
+        if self.lut is None:  # the initial box: the colour model, no value
+            model = fgbg.init_colour_model(image, box)
+            self.lut, self.grey = fgbg.foreground_lut(model), model.grey
+            return float("nan")
+        c = colour_contrast(image, self.lut, self.grey, box)
+        if not np.isfinite(c):
+            return float("nan")
+        if len(self.ref) < self.ref_frames:
+            self.ref.append(c)
+        return float(1.0 - c / max(float(np.median(self.ref)), COLOUR_FLOOR))
+
+
 # --------------------------------------------------------------------------- #
 # the observer
 # --------------------------------------------------------------------------- #
@@ -213,6 +277,7 @@ class _State:
         self.d_run: deque = deque(maxlen=cfg.z_window)
         self.slip: deque = deque(maxlen=cfg.slip_frames)  # motion − flow (pixels) of recent frames, None: untrusted
         self.base_size = float("nan")
+        self.colour = ColourSignal(cfg.colour_ref)
 
 
 class SignalObserver:
@@ -292,6 +357,7 @@ class SignalObserver:
                 s.slip.append(motion - flow if trusted(fb, fail, flow) else None)
                 out["slip"] = slip(s.slip, size)
         s.boxes.append(box)
+        out["colour"] = s.colour.step(frame.image, box)
         # ---- the content's look against its first and recent looks -------------------------
         L, coarse, _ = self._look(s, frame, rec, box, index)
         if L is not None:

@@ -47,6 +47,7 @@ __all__ = [
     "colour_bins",
     "colour_map",
     "colour_term",
+    "foreground_lut",
     "init_colour_model",
     "update_colour_model",
 ]
@@ -182,6 +183,11 @@ def update_colour_model(state: ColourModel, frame: np.ndarray, box, rate: float)
     )
 
 
+def foreground_lut(state: ColourModel) -> np.ndarray:
+    """``P − ½`` of every colour bin, ``(bins,)``: the foreground probability of the module docstring, centred."""
+    return (state.fg + PRIOR) / (state.fg + state.bg + 2 * PRIOR) - 0.5
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class ColourMap:
     """A frame's foreground probability around the previous estimate, ready for box sums.
@@ -221,8 +227,7 @@ def colour_map(frame: np.ndarray, state: ColourModel, reliability: float = 0.0) 
     X0, Y0 = int(np.clip(np.floor(cx - half), 0, W - 1)), int(np.clip(np.floor(cy - half), 0, H - 1))
     X1, Y1 = int(np.clip(np.ceil(cx + half), X0 + 1, W)), int(np.clip(np.ceil(cy + half), Y0 + 1, H))
     bins = colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], state.grey)
-    lut = (state.fg + PRIOR) / (state.fg + state.bg + 2 * PRIOR) - 0.5
-    P = lut[bins]
+    P = foreground_lut(state)[bins]
     integral = cv2.integral(P.astype(np.float64), sdepth=cv2.CV_64F)
     gain = (state.contrast / CONTRAST_REF) ** reliability if reliability > 0 else 1.0
     return ColourMap((X0, Y0), integral, float(np.maximum(P, 0.0).sum()), max(w * h, 1.0), float(gain))

@@ -1,0 +1,40 @@
+"""Add the ``colour`` signal to bench results made before it existed, from their saved boxes.
+
+``colour`` (:class:`covviz.diagnosis.signals.ColourSignal`) is a function of the frames and the
+tracker's boxes alone, so it can be computed after the run, from the ``.txt`` boxes beside each result
+(two decimals: where a box edge sits within 0.005 px of a half pixel, the rounded edge may differ by one
+pixel from the run's own). Every other signal is left as it is; each result gains
+``diagnosis.backfilled = {"colour": "scripts/backfill_colour.py"}``, so a reader can tell. Results that
+already carry the signal are kept unless ``--force``. Without ground truth nothing changes: the signal
+never reads it.
+
+Usage::
+
+    python scripts/backfill_colour.py runs/bench-drift               # sequences under ../shared/sequences
+    python scripts/backfill_colour.py runs/bench-drift --root DIR --force
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from covviz.diagnosis.backfill import backfill_colour
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("bench", type=Path, help="a covviz bench --out folder")
+    ap.add_argument("--root", type=Path, default=Path("../shared/sequences"), help="the sequences' folder")
+    ap.add_argument("--force", action="store_true", help="recompute results that already have the signal")
+    args = ap.parse_args(argv)
+    if not args.bench.is_dir():
+        ap.error(f"{args.bench}: no such folder")
+    done, kept = backfill_colour(args.bench, args.root, args.force, progress=True)
+    print(f"backfilled {done} result(s), kept {kept}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
