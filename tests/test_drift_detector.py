@@ -402,6 +402,13 @@ def test_describe_alarm():
     a = {"frame": 108, "until": 112, "probability": 0.6702, "peak": 0.7493, "drivers": ["slip"],
          "signals": {"slip": 0.52}}
     assert describe_alarm(a) == "frames 108–112: likely off track, p 0.67 (peak 0.75) — slip 0.52 box"
+    # a gated model's alarm: the colour that let it through, beside its gate
+    a["gate"], a["signals"]["colour"] = 0.3, 0.612
+    assert describe_alarm(a) == ("frames 108–112: likely off track, p 0.67 (peak 0.75) — slip 0.52 box; "
+                                 "colour lost 0.61 (gate 0.3)")
+    a["drivers"] = []
+    assert describe_alarm(a) == "frames 108–112: likely off track, p 0.67 (peak 0.75) — colour lost 0.61 (gate 0.3)"
+    assert describe_alarm(a, span=False) == "likely off track, p 0.67 (peak 0.75) — colour lost 0.61 (gate 0.3)"
 
 
 # --------------------------------------------------------------------------- #

@@ -120,7 +120,7 @@ LABELS = {
     "motion": ("motion", " box"), "scale_rate": ("scale rate", ""), "d_first": ("d to first look", ""),
     "d_recent": ("d to recent looks", ""), "psr": ("PSR", ""), "ess": ("ESS", ""),
     "dmin_z": ("distance z", ""), "mode_mass": ("second mode", ""), "cloud_gap": ("cloud gap", ""),
-    "slip": ("slip", " box"),
+    "slip": ("slip", " box"), "colour": ("colour lost", ""),
 }
 
 
@@ -564,6 +564,7 @@ class DriftWatch(Observer):
                     "probability": round(p, 4),
                     "signals": {k: (None if not np.isfinite(v) else float(f"{v:.4g}")) for k, v in vals.items()},
                     "drivers": drivers,
+                    **({} if w.model.gate is None else {"gate": w.model.gate}),
                     "until": int(frame.index) + 1,
                     "peak": round(p, 4),
                 }
@@ -614,15 +615,17 @@ class DriftWatch(Observer):
         return out
 
 
-def describe_alarm(a: dict) -> str:
-    """One line for a terminal: ``frames 63–80: likely off track, p 0.91 — FB error 0.4 box, ESS 0.01``.
+def describe_alarm(a: dict, span: bool = True) -> str:
+    """One line for a terminal: ``frames 63–80: likely off track, p 0.91 — FB error 0.4 box, ESS 0.01``
+    (``span`` False: without its frames, for a row that shows them already).
 
     The probability and the signals are those of the alarm's first frame, as in the recording's event
     for it; where the episode's probability rose higher later, its peak follows: ``p 0.80 (peak 0.91)``.
     An alarm of the ``changes`` design also says what each value usually was in the run (the median
-    of its window): ``ESS 0.01 (usually 0.31)``.
+    of its window): ``ESS 0.01 (usually 0.31)``. A gated model's alarm ends with the colour that let it
+    through: ``slip 0.52 box; colour lost 0.61 (gate 0.3)``.
     """
-    span = f"frame {a['frame']}" if a.get("until", a["frame"]) == a["frame"] else f"frames {a['frame']}–{a['until']}"
+    frames = f"frame {a['frame']}" if a.get("until", a["frame"]) == a["frame"] else f"frames {a['frame']}–{a['until']}"
     parts = []
     for k in a.get("drivers", [])[:2]:
         v = a["signals"].get(k)
@@ -632,8 +635,12 @@ def describe_alarm(a: dict) -> str:
         u = a.get("usual", {}).get(k)
         parts.append(f"{name} {v:.2g}{unit}" + ("" if u is None else f" (usually {u:.2g})"))
     p, peak = f"{a['probability']:.2f}", f"{a.get('peak', a['probability']):.2f}"
-    return f"{span}: likely off track, p {p}" + ("" if peak == p else f" (peak {peak})") + (
-        " — " + ", ".join(parts) if parts else "")
+    gate = ""
+    c = a["signals"].get("colour")
+    if a.get("gate") is not None and c is not None and "colour" not in a.get("drivers", [])[:2]:
+        gate = f"{'; ' if parts else ' — '}{LABELS['colour'][0]} {c:.2g} (gate {a['gate']:g})"
+    return f"{frames + ': ' if span else ''}likely off track, p {p}" + ("" if peak == p else f" (peak {peak})") + (
+        " — " + ", ".join(parts) if parts else "") + gate
 
 
 def drift_watch(detector=None) -> DriftWatch:

@@ -78,7 +78,8 @@ class DriftRecorder(Observer):
                 P.set_frame_time(rec, frame)  # this thread's own time, for the alarms' rows
                 timed = True
             for a in new:
-                text = f"drift alarm: {describe_alarm(a)} (label-free; drivers {', '.join(a['drivers']) or '-'})"
+                # The row's frame column says where; the body leads with what (its width cuts the end off).
+                text = f"drift alarm: {describe_alarm(a, span=False)} (label-free)"
                 rec.log(paths.events, rr.TextLog(viewer_safe(f"[{paths.name}] {text}"),
                                                   level="WARN"))
                 rec.log(paths.event_records, rr.AnyValues(
