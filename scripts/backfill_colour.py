@@ -1,12 +1,5 @@
-"""Add the ``colour`` signal to bench results made before it existed, from their saved boxes.
-
-``colour`` (:class:`covviz.diagnosis.signals.ColourSignal`) is a function of the frames and the
-tracker's boxes alone, so it can be computed after the run, from the ``.txt`` boxes beside each result
-(two decimals: where a box edge sits within 0.005 px of a half pixel, the rounded edge may differ by one
-pixel from the run's own). Every other signal is left as it is; each result gains
-``diagnosis.backfilled = {"colour": "scripts/backfill_colour.py"}``, so a reader can tell. Results that
-already carry the signal are kept unless ``--force``. Without ground truth nothing changes: the signal
-never reads it.
+"""Add the ``colour`` signal to bench results made before it existed, from their saved boxes
+(:mod:`covviz.diagnosis.backfill` says how, and how far the values can differ from a run's own).
 
 Usage::
 

@@ -543,6 +543,19 @@ def test_calibrate_command_writes_a_model_the_detector_option_reads(tmp_path, rn
                  "--detector", str(tmp_path / "missing.json")]) == 2
 
 
+def test_calibrate_says_which_runs_can_fit_no_colour_gate(tmp_path, rng, caplog):
+    from covviz.cli import main
+
+    _fake_bench(tmp_path, rng)
+    js = sorted((tmp_path / "bench").glob("*/*.json"))[0]
+    doc = json.loads(js.read_text())
+    del doc["diagnosis"]["signals"]["colour"]  # a result saved before the signal existed
+    js.write_text(json.dumps(doc))
+    with caplog.at_level("WARNING", logger="covviz"):
+        assert main(["calibrate", str(tmp_path / "bench"), "--out", str(tmp_path / "m.json")]) == 0
+    assert "1 of 3 runs have no colour signal" in caplog.text and "backfill_colour.py" in caplog.text
+
+
 def test_calibrate_refuses_a_tracker_or_seeds_the_folder_does_not_have(tmp_path, rng, capsys, caplog):
     from covviz.cli import main
 

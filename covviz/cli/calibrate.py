@@ -13,7 +13,9 @@ examples:
   covviz bench ../shared/sequences --trackers manifold --seeds 3 --out runs/bench
   covviz calibrate runs/bench --out my-detector.json            # one model on every run there
   covviz calibrate runs/bench --trackers csrt,kcf --out cv.json   # only these trackers' runs
-  covviz calibrate runs/bench --seeds 0-5 --all-families covviz/diagnosis/models   # the shipped models
+  covviz calibrate runs/bench --seeds 0-5 --all-families covviz/diagnosis/models   # the shipped models, then
+  covviz calibrate runs/bench --seeds 0-5 --trackers manifold --design signal:slip \
+      --out covviz/diagnosis/models/manifold.json                     # the default tracker's (docs/tuning.md)
   covviz track clip.mp4 --box 120,80,40,60 --detector my-detector.json
 
 The runs need ground truth and the per-frame signals that covviz bench saves
@@ -97,6 +99,7 @@ def cmd_calibrate(args) -> int:
         raise UsageError("give --out FILE (one model) or --all-families DIR (one per family), not both or neither")
     trackers = None if args.trackers is None else set(args.trackers.split(","))
     runs = load_runs(args.bench_dir, trackers, args.seeds)
+    _warn_without_colour(runs, args.bench_dir)
     info = {"id": f"{args.bench_dir.name}"}
     design = None if args.design == "auto" else args.design
     target = None if args.target == "auto" else args.target.replace("-", "_")
@@ -110,6 +113,22 @@ def cmd_calibrate(args) -> int:
     m = fit_design(runs, fam, fit_info=info, target=target, design=design)
     print(f"{m.family}: {_describe(m)} -> {m.save(args.out)}")
     return 0
+
+
+def _warn_without_colour(runs, bench_dir) -> None:
+    """Runs made before the ``colour`` signal existed can fit no colour gate: say so, and how to add it."""
+    import logging
+
+    import numpy as np
+
+    from covviz.diagnosis.signals import SIGNALS
+
+    k = SIGNALS.index("colour")
+    n = sum(not np.isfinite(r.rows[:, k]).any() for r in runs)
+    if n:
+        logging.getLogger("covviz").warning(
+            "%d of %d runs have no colour signal (made before it existed): no colour gate is fitted on them; "
+            "'python scripts/backfill_colour.py %s' adds it from their saved boxes", n, len(runs), bench_dir)
 
 
 def _describe(m) -> str:

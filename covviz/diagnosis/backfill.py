@@ -14,20 +14,13 @@ The command line is ``scripts/backfill_colour.py``.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
-import numpy as np
-
 from covviz.data.sequences import open_sequence
-from covviz.diagnosis.signals import ColourSignal
-from covviz.experiments.results import ResultError, load_result
+from covviz.diagnosis.signals import ColourSignal, saved_value
+from covviz.experiments.results import ResultError, _atomic_write, load_result
 
 __all__ = ["backfill_colour"]
-
-
-def _fmt(v: float):
-    return None if not np.isfinite(v) else float(f"{v:.5g}")  # as SignalObserver.report writes signals
 
 
 def backfill_colour(bench: Path, root: Path, force: bool = False, progress: bool = False) -> tuple[int, int]:
@@ -61,11 +54,9 @@ def backfill_colour(bench: Path, root: Path, force: bool = False, progress: bool
                     vals[k].append(sigs[k].step(image, boxes[i]))
         for (js, doc, _), v in zip(todo, vals):
             dg = doc["diagnosis"]
-            dg["signals"]["colour"] = [_fmt(x) for x in v]
+            dg["signals"]["colour"] = [saved_value(x) for x in v]
             dg["backfilled"] = {**(dg.get("backfilled") or {}), "colour": "scripts/backfill_colour.py"}
-            tmp = js.with_suffix(".json.tmp")
-            tmp.write_text(json.dumps(doc, indent=1, allow_nan=True))
-            os.replace(tmp, js)
+            _atomic_write(js, json.dumps(doc, indent=1, allow_nan=True))
             done += 1
         if progress:
             print(f"{sd.name}: {len(todo)} result(s)", flush=True)

@@ -52,6 +52,7 @@ from covviz.diagnosis.detector import (
     DriftModel,
     Hysteresis,
     family_of,
+    gate_probability,
     history_features,
 )
 from covviz.diagnosis.signals import GENERIC_SIGNALS, SIGNALS
@@ -105,10 +106,6 @@ TROUBLE = {sig: sign for sig, sign in BASELINES.values()}
 #: What a ``signal`` design is fitted on: its alarms do not depend on it (the map is monotone), and with
 #: the off-track frames its probability reads as the chance of being off track at that level.
 SIGNAL_TARGET = "off_track"
-#: Families whose feature design is fixed instead of chosen by :func:`choose_fit` (by :func:`fit_design` with
-#: no design given, and in every fold of :func:`loso`); the gate and the alarm rule are still fitted. Why
-#: each is fixed: docs/tuning.md.
-FAMILY_DESIGNS: dict[str, str] = {}
 #: The gates :func:`choose_gate` weighs (levels of the ``colour`` signal: the share of its first contrast lost).
 GATE_LEVELS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 
@@ -412,7 +409,7 @@ def choose_gate(probs: list[np.ndarray], runs: list[Run], rule: Hysteresis) -> f
         return None
     best, best_key = None, _key_of(_counts(probs, runs, [rule])[0], runs)
     for g in GATE_LEVELS:
-        gated = [np.where(r.rows[:, col] < g, 0.0, p) for p, r in zip(probs, runs)]
+        gated = [gate_probability(p, r.rows[:, col], g) for p, r in zip(probs, runs)]
         key = _key_of(_counts(gated, runs, [rule])[0], runs)
         if key > best_key:
             best, best_key = g, key
@@ -636,22 +633,16 @@ def fit_design(runs: list[Run], family: str, signals=None, fit_info: dict | None
     """A model of the design and fit target :func:`choose_fit` picks on ``runs`` (those given are kept),
     fitted on all of them.
 
-    ``design``: None (the family's fixed design, :data:`FAMILY_DESIGNS`, else every candidate of
-    :func:`candidates`), a design (``"signal"``: the best single signal) or one candidate key
-    (``"signal:flow_gap"``).
+    ``design``: None (every candidate of :func:`candidates`), a design (``"signal"``: the best single
+    signal) or one candidate key (``"signal:flow_gap"``).
     """
     signals = tuple(signals or signals_for(sorted({r.tracker for r in runs})))
-    design = FAMILY_DESIGNS.get(family) if design is None else design
     designs = candidates(signals, DESIGNS if design is None else (design,))
     if not designs:
         raise InputError(f"no single signal of {', '.join(TROUBLE)} among this family's signals")
     targets = TARGETS if target is None else (target,)
     feats = {d: _design(runs, signals, d) for d in designs}
-    only = targets_of(designs[0], targets) if len(designs) == 1 else ()
-    if len(only) == 1:  # nothing to choose
-        design, target, held_out = designs[0], only[0], {}
-    else:
-        design, target, held_out = choose_fit(runs, family, signals, feats, targets, designs)
+    design, target, held_out = choose_fit(runs, family, signals, feats, targets, designs)
     info = {**(fit_info or {}), "design_choice": {"held_out": {f"{d} {t}": v for (d, t), v in held_out.items()}}}
     return fit_model(runs, family, signals, feats[design], info, design, target)
 
@@ -675,12 +666,10 @@ def fit_families(runs: list[Run], fit_info: dict | None = None, design: str | No
 # --------------------------------------------------------------------------- #
 # leave-one-sequence-out evaluation
 # --------------------------------------------------------------------------- #
-def loso(runs: list[Run], tracker: str, family: str | None = None, target: str | None = None,
-         design: str | None = None) -> dict:
+def loso(runs: list[Run], tracker: str, family: str | None = None, target: str | None = None) -> dict:
     """Leave-one-sequence-out scores of ``tracker``: the model of its family and each baseline.
 
-    For each sequence, the model's feature design (``design``, else the family's fixed one of
-    :data:`FAMILY_DESIGNS`, else chosen) and (``target`` None) its fit target are chosen
+    For each sequence, the model's feature design and (``target`` None) its fit target are chosen
     (:func:`choose_fit`, nested inside the fold), the model fitted and its alarm rule and gate chosen, on the
     family's runs of the other sequences only, and so is each baseline's threshold; the held-out
     sequence's runs of ``tracker`` are then scored. Returns, per method (``model`` and each of
@@ -688,7 +677,6 @@ def loso(runs: list[Run], tracker: str, family: str | None = None, target: str |
     ``"designs"`` and ``"targets"`` what each fold chose.
     """
     family = family or family_of(tracker)
-    fixed = FAMILY_DESIGNS.get(family) if design is None else design
     pool = family_runs(runs, family)
     signals = signals_for(sorted({r.tracker for r in pool}))
     feats = {d: dict(zip(map(id, pool), _design(pool, signals, d))) for d in candidates(signals)}
@@ -700,7 +688,7 @@ def loso(runs: list[Run], tracker: str, family: str | None = None, target: str |
         if not train or not test:
             continue
         design, tgt, _ = choose_fit(train, family, signals, {d: [feats[d][id(r)] for r in train] for d in feats},
-                                    TARGETS if target is None else (target,), None if fixed is None else (fixed,))
+                                    TARGETS if target is None else (target,))
         try:
             m = fit_model(train, family, signals, [feats[design][id(r)] for r in train], design=design, target=tgt)
         except InputError:

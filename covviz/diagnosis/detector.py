@@ -320,6 +320,11 @@ class _AlarmState:
     i: int = 0
 
 
+def gate_probability(p: np.ndarray, colour: np.ndarray, gate: float) -> np.ndarray:
+    """``p`` with the colour gate at ``gate``: 0 where ``colour`` is below it (nan, no colour: not gated)."""
+    return np.where(colour < gate, 0.0, p)
+
+
 @dataclass(frozen=True)
 class DriftModel:
     """A fitted drift-probability model (see the module docstring); load with :meth:`load`."""
@@ -367,8 +372,7 @@ class DriftModel:
         is below :attr:`gate` (a missing colour gates nothing)."""
         if self.gate is None:
             return p
-        c = np.asarray(rows, dtype=np.float64)[..., SIGNALS.index(GATE_SIGNAL)]
-        return np.where(c < self.gate, 0.0, p)
+        return gate_probability(p, np.asarray(rows, dtype=np.float64)[..., SIGNALS.index(GATE_SIGNAL)], self.gate)
 
     def contributions(self, feats: np.ndarray) -> dict[str, float]:
         """Each signal's share of the logit on one frame (its features summed), by name."""

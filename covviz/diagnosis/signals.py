@@ -68,7 +68,7 @@ from covviz.model.adaptive import robust_z
 from covviz.model.flow import FB_GRID, LK_LEVELS, LK_WINDOW, ROI_MARGIN, gray8, median_flow, trusted
 
 __all__ = ["GENERIC_SIGNALS", "PARTICLE_SIGNALS", "SIGNALS", "ColourSignal", "SignalConfig", "SignalObserver",
-           "colour_contrast", "fb_flow", "psr", "slip"]
+           "colour_contrast", "fb_flow", "psr", "saved_value", "slip"]
 
 #: Signals of every tracker.
 GENERIC_SIGNALS = ("fb_error", "fb_fail", "flow_gap", "motion", "scale_rate", "d_first", "d_recent", "psr", "slip",
@@ -217,6 +217,11 @@ def psr(d: np.ndarray, peak: int, side: np.ndarray) -> float:
     return float((s.mean() - d[peak]) / (s.std() + 1e-6))
 
 
+def saved_value(v: float) -> float | None:
+    """A signal's value as results save it: 5 significant digits, None where undefined."""
+    return None if not np.isfinite(v) else float(f"{v:.5g}")
+
+
 def colour_contrast(frame: np.ndarray, lut: np.ndarray, grey: bool, box) -> float:
     """Mean of ``lut`` (``P − ½`` per colour bin, :func:`covviz.model.fgbg.foreground_lut`) over ``box``'s pixels
     minus its mean over the ring around it (the box grown by :data:`covviz.model.fgbg.RING_PAD` of its mean
@@ -249,6 +254,7 @@ class ColourSignal:
         self.lut: np.ndarray | None = None
         self.grey = False
         self.ref: list[float] = []
+        self._ref_value: float | None = None  # the reference, once its frames are all in
 
     def step(self, image: np.ndarray, box) -> float:
         if self.lut is None:  # the initial box: the colour model, no value
@@ -258,9 +264,14 @@ class ColourSignal:
         c = colour_contrast(image, self.lut, self.grey, box)
         if not np.isfinite(c):
             return float("nan")
-        if len(self.ref) < self.ref_frames:
+        if self._ref_value is None:
             self.ref.append(c)
-        return float(1.0 - c / max(float(np.median(self.ref)), COLOUR_FLOOR))
+            ref = max(float(np.median(self.ref)), COLOUR_FLOOR)
+            if len(self.ref) == self.ref_frames:
+                self._ref_value = ref
+        else:
+            ref = self._ref_value
+        return float(1.0 - c / ref)
 
 
 # --------------------------------------------------------------------------- #
@@ -417,5 +428,5 @@ class SignalObserver:
         """Tracker ``index``'s signals as plain data for the results JSON (``diagnosis.signals``)."""
         cols = self.columns(index)
         return {
-            "signals": {k: [None if not np.isfinite(v) else float(f"{v:.5g}") for v in col] for k, col in cols.items()},
+            "signals": {k: [saved_value(v) for v in col] for k, col in cols.items()},
         }
