@@ -14,7 +14,8 @@ Usage:
 
 The variants (``VARIANTS``): the default of before issue 14 (the quadrant term:
 ``NEW_TERMS_OFF``), that plus each new term alone, all of them (the default,
-``ManifoldConfig()``), the default without the gradient floor, the default with the paper's
+``ManifoldConfig()``), the default without the gradient floor, the default without the
+position step of the reported box (``ncc_rate`` 0: the filter's own estimate), the default with the paper's
 constant noise (no adaptive diffusion, issue 24), ``manifold-paper``
 (``PAPER_LIKELIHOOD``), and the default with the motion prior from the image
 (``flow_share``, off by default: docs/tuning.md). ``--cost-only`` times ``update()``
@@ -50,6 +51,7 @@ VARIANTS: dict[str, tuple[str, str, dict]] = {
     "colour": ("+ colour term", "manifold", {**NEW_TERMS_OFF, "colour_weight": DEFAULT.observation.colour_weight}),
     "default": ("both: the default", "manifold", {}),
     "nofloor": ("the default, gradient floor off", "manifold", {"grad_floor": 0.0}),
+    "noncc": ("the default, position step off (ncc_rate 0)", "manifold", {"ncc_rate": 0.0}),
     "static": ("the default, constant noise (no adaptive diffusion)", "manifold",
                {"adaptive": {"enabled": False}}),
     "paper": ("manifold-paper", "manifold-paper", {}),
@@ -115,12 +117,15 @@ def cost_table(sequences: list[str], keys, frames: int, repeat: int) -> list[str
     """ms per update() of each variant at 600 particles, side by side (variants alternate within each pass)."""
     from covviz.data.sequences import open_sequence
 
-    base = "previous" if "previous" in keys else "static" if "static" in keys else None
-    what = {"previous": "the new terms", "static": "the adaptive diffusion"}.get(
-        base, "the flow prior" if "flow" in keys else "—")
+    # What each change adds to the default's update(): the default against the variant without it.
+    what = {"previous": "the new terms", "static": "the adaptive diffusion", "noncc": "the position step"}
+    bases = [b for b in what if b in keys] if "default" in keys else []
+    flow = not bases and "flow" in keys and "default" in keys  # the flow prior adds to the default
+    added_cols = [f"added by {what[b]}, share of the default's update()" for b in bases] or (
+        ["added by the flow prior, share of the default's update()"] if flow else ["added, share of the default's update()"])
     lines = ["| sequence (frame) | " + " | ".join(VARIANTS[k][0] for k in keys)
-             + f" | added by {what}, share of the default's update() |",
-             "|---|" + "---:|" * (len(keys) + 1)]
+             + "".join(f" | {c}" for c in added_cols) + " |",
+             "|---|" + "---:|" * (len(keys) + len(added_cols))]
     for name in sequences:
         seq = open_sequence(name)
         n = min(frames, len(seq))
@@ -134,12 +139,11 @@ def cost_table(sequences: list[str], keys, frames: int, repeat: int) -> list[str
                 dt, _ = time_tracker(lambda f=factory, c=c: f(600, rng=0, config=c), imgs, seq.init_box, 1)
                 best[k] = min(best[k], dt)
         h, w = imgs[0].shape[:2]
-        added = 1 - best[base] / best["default"] if base and "default" in best else float("nan")
-        if base is None and "flow" in best and "default" in best:  # the flow prior adds to the default
-            added = best["flow"] / best["default"] - 1
+        added = [1 - best[b] / best["default"] for b in bases] or (
+            [best["flow"] / best["default"] - 1] if flow else [float("nan")])
         label = Path(name).name if not name.startswith("synthetic") else "synthetic"
         lines.append(f"| {label} ({w}×{h}) | " + " | ".join(f"{1e3 * best[k]:.2f}" for k in keys)
-                     + (f" | {100 * added:+.0f}% |" if np.isfinite(added) else " | — |"))
+                     + "".join(f" | {100 * a:+.0f}%" if np.isfinite(a) else " | —" for a in added) + " |")
         print(lines[-1], flush=True)
     return lines
 

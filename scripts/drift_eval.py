@@ -261,6 +261,11 @@ def main(argv=None) -> int:
                     help="the particle filters' seeds of the leave-one-sequence-out tables (default 0-5); the "
                          "shipped models are scored on every seed of the folder they were not fitted on")
     args = ap.parse_args(argv)
+    if args.write and args.write.exists():
+        doc = args.write.read_text()
+        if (BEGIN in doc) != (END in doc):
+            # A lone marker (a section cut by hand) would leave a stray one or append a second section.
+            ap.error(f"{args.write} has one of {BEGIN} / {END} without the other: fix it before a 10-minute run")
 
     from covviz.diagnosis.calibrate import load_runs
 
@@ -346,7 +351,7 @@ def main(argv=None) -> int:
     print(text)
     if args.write:
         doc = args.write.read_text() if args.write.exists() else ""
-        if BEGIN in doc and END in doc:
+        if BEGIN in doc:
             doc = doc[: doc.index(BEGIN)] + text + doc[doc.index(END) + len(END) + 1:]
         else:
             doc = doc.rstrip("\n") + "\n\n" + text

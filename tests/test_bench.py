@@ -370,10 +370,10 @@ def test_result_with_another_config(results, root, capsys):
 
 
 @pytest.mark.parametrize("edit, kept", [
-    ({"drop": "ncc_rate"}, True),  # saved before the position step existed
+    ({"drop": "ncc_rate"}, False),  # saved before the position step existed (off), which is now on
     ({"set": ("flow_guard", 0.0)}, True),  # saved while the (since removed) guard existed, off
     ({"set": ("flow_guard", 0.05)}, False),  # the guard on: another tracker
-    ({"set": ("ncc_rate", 0.02)}, False),  # the position step on: another tracker
+    ({"set": ("ncc_rate", 0.0)}, False),  # the position step off: another tracker than the default
 ])
 def test_result_saved_before_a_neutral_field(results, root, capsys, edit, kept):
     js = result_paths(results, "beta", "manifold", 0)[1]
