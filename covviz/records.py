@@ -219,6 +219,11 @@ class FrameRecord:
         The scale/rotation search at the estimate, when the config asks for one.
     diffusion : Diffusion, optional
         The adaptive diffusion's evidence and what it did, when the config has it on.
+    filter_pose : ndarray, shape (4,), optional
+        The filter's own MMSE estimate ``cx, cy, scale, theta`` (the weighted mean of
+        ``particle_poses``), when the reported ``pose`` is not it: the position step of the
+        manifold tracker (``ManifoldConfig.ncc_rate``) moves only the reported centre, and the
+        filter goes on from this one. None when ``pose`` is the MMSE estimate itself.
     extras : dict[str, Any]
         Only what a baseline adds of its own (IPCA's mean and basis, an OpenCV
         tracker's failure flag); empty for the manifold trackers.
@@ -247,6 +252,7 @@ class FrameRecord:
     inputs: FrameInputs | None = None
     pose_search: PoseSearch | None = None
     diffusion: Diffusion | None = None
+    filter_pose: np.ndarray | None = None
     extras: dict[str, Any] = field(default_factory=dict)
 
     @property

@@ -18,7 +18,7 @@ from scipy.special import logsumexp
 
 from covviz.data.sequences import SyntheticSequence
 from covviz.metrics import iou
-from covviz.model import spd
+from covviz.model import refine, spd
 from covviz.model.features import pose_corners, pose_to_box
 from covviz.model.image import check_init_box
 from covviz.model.observation import quadrant_term
@@ -200,8 +200,15 @@ def check_record(rec: FrameRecord, tr: ManifoldTracker, index: int):
     # Distances are d(expm(template), descriptor), per particle.
     np.testing.assert_allclose(rec.distances, spd.distance_riemann(rec.descriptors, spd.expm(rec.templates)),
                                rtol=1e-7, atol=1e-9)
-    # The estimate is the MMSE pose, and the box/corners are its geometry.
-    np.testing.assert_allclose(rec.pose, w @ rec.particle_poses, rtol=1e-9, atol=1e-9)
+    # The filter's estimate is the MMSE pose; the reported pose is it, or (the position step, ncc_rate > 0) it
+    # with its centre moved within the search radius (a quarter of the box's size, whole pixels, at least 1,
+    # plus the sub-pixel parabola's half pixel); the box/corners are the reported pose's geometry.
+    mmse = rec.pose if rec.filter_pose is None else rec.filter_pose
+    assert (rec.filter_pose is not None) == (tr.config.ncc_rate > 0)
+    np.testing.assert_allclose(mmse, w @ rec.particle_poses, rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(rec.pose[2:], mmse[2:])
+    reach = np.maximum(1, np.ceil(refine.NCC_RADIUS * rec.box[2:])) + 0.5
+    assert np.all(np.abs(rec.pose[:2] - mmse[:2]) <= reach + 1e-9)
     np.testing.assert_allclose(rec.box, pose_to_box(rec.pose, tr.model.base_wh)[0], atol=1e-9)
     np.testing.assert_allclose(rec.corners, pose_corners(rec.pose, tr.model.base_wh)[0], atol=1e-9)
     np.testing.assert_allclose(rec.particle_corners, pose_corners(rec.particle_poses, tr.model.base_wh), atol=1e-9)

@@ -867,6 +867,7 @@ class ManifoldTracker:
                 e, km.mode_probs[1], walk_factor, n_fresh, self.adapt.evidence,
                 self.adapt.z, self.adapt.lost,
             ),
+            filter_pose=None if self.ncc is None else est_pose,
         )
         return box
 
