@@ -15,13 +15,11 @@ import argparse
 import sys
 from pathlib import Path
 
-
-def _seeds(text: str) -> list[int]:
-    out = []
-    for part in text.split(","):
-        a, _, b = part.partition("-")
-        out += list(range(int(a), int(b or a) + 1))
-    return out
+from drift_eval import (  # this folder is on sys.path when run as a script
+    _seeds,
+    model_scores,
+    synthetic_alarms,
+)
 
 
 def main(argv=None) -> int:
@@ -36,31 +34,22 @@ def main(argv=None) -> int:
         if not f.is_file():
             ap.error(f"no model file {f}")
 
-    from covviz.data.sequences import open_sequence
-    from covviz.diagnosis.calibrate import _pool, _pr, alarm_frames, load_runs, score_alarms
-    from covviz.diagnosis.detector import DriftModel, DriftWatch
-    from covviz.runner import run
-    from covviz.trackers import make_tracker
+    from covviz.diagnosis.calibrate import load_runs
+    from covviz.diagnosis.detector import DriftModel
 
     runs = load_runs(args.bench_dir, trackers=[args.tracker], seeds=args.seeds)
     if not runs:
-        ap.error(f"no {args.tracker} runs of seeds {args.seeds} in {args.bench_dir}")
-    seq = open_sequence(None)
-    print(f"{len(runs)} {args.tracker} runs of seeds {args.seeds}; synthetic default seeds 0-{args.synthetic_seeds - 1}")
+        ap.error(f"no {args.tracker} runs of seeds {sorted(args.seeds)} in {args.bench_dir}")
+    print(f"{len(runs)} {args.tracker} runs of seeds {sorted(args.seeds)}; synthetic default seeds 0-{args.synthetic_seeds - 1}")
     for f in args.models:
         m = DriftModel.load(f)
-        ps = [m.predict_run(r.rows) for r in runs]
-        c = _pool([score_alarms(alarm_frames(p, m.alarm), r) for p, r in zip(ps, runs)])
-        pr, rc = _pr(c)
-        fa = 1000 * c["fp"] / c["on_track"] if c["on_track"] else float("nan")
-        syn = []
-        for s in range(args.synthetic_seeds):
-            w = DriftWatch(detector=m)
-            run(make_tracker(args.tracker, seed=s), seq, [w], max_frames=300, seed=s)
-            syn.append(len(w.report(0)["alarms"]))
+        _, c, pr, rc, fa = model_scores(m, runs)
+        lines, total = synthetic_alarms(range(args.synthetic_seeds), detector=m, tracker=args.tracker)
         print(f"{f}: {m.design} design; {c['losses']} losses, {c['found']} found, {c['alarms']} alarms, "
               f"precision {100 * pr:.0f}%, recall {100 * rc:.0f}%, {fa:.1f} false per 1000 on-track; "
-              f"synthetic: {sum(syn)} alarm(s) {syn}")
+              f"synthetic: {total} alarm(s)")
+        for line in lines:
+            print(f"  {line}")
     return 0
 
 

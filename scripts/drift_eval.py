@@ -177,10 +177,21 @@ def _span(seeds) -> str:
     return seed_list(seeds, dash="–")
 
 
+def model_scores(m, runs) -> tuple[list, dict, float, float, float]:
+    """A drift model on labelled runs: its probabilities per run, the pooled alarm counts, precision, recall and
+    false alarms per 1000 on-track frames."""
+    from covviz.diagnosis.calibrate import _pool, _pr, alarm_frames, score_alarms
+
+    ps = [m.predict_run(r.rows) for r in runs]
+    c = _pool([score_alarms(alarm_frames(p, m.alarm), r) for p, r in zip(ps, runs)])
+    pr, rc = _pr(c)
+    fa = 1000 * c["fp"] / c["on_track"] if c["on_track"] else float("nan")
+    return ps, c, pr, rc, fa
+
+
 def shipped_table(runs) -> tuple[list[str], list, list]:
     """The shipped models on the runs of seeds each was not fitted on (its file says which it was): the
     table, the seeds they were fitted on, and the seeds they are scored on."""
-    from covviz.diagnosis.calibrate import _pool, _pr, alarm_frames, score_alarms
     from covviz.diagnosis.detector import shipped_model
 
     L = [
@@ -201,21 +212,21 @@ def shipped_table(runs) -> tuple[list[str], list, list]:
             continue
         fitted |= own
         scored |= {r.seed for r in test}
-        ps = [m.predict_run(r.rows) for r in test]
-        c = _pool([score_alarms(alarm_frames(p, m.alarm), r) for p, r in zip(ps, test)])
-        pr, rc = _pr(c)
+        ps, c, pr, rc, fa = model_scores(m, test)
         y = np.concatenate([r.off[r.labelled] for r in test])
         s = np.concatenate([p[r.labelled] for p, r in zip(ps, test)])
         auc = average_precision_score(y, s) if y.any() and not y.all() else float("nan")
         lead = float(np.median(c["leads"])) if c["leads"] else float("nan")
-        fa = 1000 * c["fp"] / c["on_track"] if c["on_track"] else float("nan")
         L.append(f"| `{tr}` | {m.family} | {_span(own)} | {len(test)} (seeds {_span({r.seed for r in test})}) "
                  f"| {c['losses']} | {_num(auc)} | {c['alarms']} | {_pct(pr)} "
                  f"| {_pct(rc)} | {_num(lead, 0)} | {_num(fa, 1)} |")
     return L, sorted(fitted), sorted(scored)
 
 
-def synthetic_alarms(seeds=range(10), frames: int = 300) -> tuple[list[str], int]:
+def synthetic_alarms(seeds=range(10), frames: int = 300, detector=None, tracker: str = "manifold"
+                     ) -> tuple[list[str], int]:
+    """The alarms of ``detector`` (default: the shipped model) on ``tracker``'s runs of the synthetic default,
+    which has no failure: a line per seed and their total."""
     from covviz.data.sequences import open_sequence
     from covviz.diagnosis.detector import DriftWatch
     from covviz.metrics import iou
@@ -225,8 +236,8 @@ def synthetic_alarms(seeds=range(10), frames: int = 300) -> tuple[list[str], int
     seq = open_sequence(None)
     total, lines = 0, []
     for s in seeds:
-        w = DriftWatch()
-        res = run(make_tracker("manifold", seed=s), seq, [w], max_frames=frames, seed=s)
+        w = DriftWatch(detector=detector)
+        res = run(make_tracker(tracker, seed=s), seq, [w], max_frames=frames, seed=s)
         rep = w.report(0)
         off = int(np.sum(iou(res.boxes, res.groundtruth)[1:] < 0.5))
         total += len(rep["alarms"])

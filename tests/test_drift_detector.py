@@ -547,7 +547,7 @@ def test_calibrate_says_which_runs_can_fit_no_colour_gate(tmp_path, rng, caplog)
     from covviz.cli import main
 
     _fake_bench(tmp_path, rng)
-    js = sorted((tmp_path / "bench").glob("*/*.json"))[0]
+    js = min((tmp_path / "bench").glob("*/*.json"))
     doc = json.loads(js.read_text())
     del doc["diagnosis"]["signals"]["colour"]  # a result saved before the signal existed
     js.write_text(json.dumps(doc))

@@ -13,9 +13,8 @@ examples:
   covviz bench ../shared/sequences --trackers manifold --seeds 3 --out runs/bench
   covviz calibrate runs/bench --out my-detector.json            # one model on every run there
   covviz calibrate runs/bench --trackers csrt,kcf --out cv.json   # only these trackers' runs
-  covviz calibrate runs/bench --seeds 0-5 --all-families covviz/diagnosis/models   # the shipped models, then
-  covviz calibrate runs/bench --seeds 0-5 --trackers manifold --design signal:slip \
-      --out covviz/diagnosis/models/manifold.json                     # the default tracker's (docs/tuning.md)
+  covviz calibrate runs/bench --seeds 0-5 --all-families covviz/diagnosis/models   # the shipped models
+  covviz calibrate runs/bench --trackers manifold --design signal:slip --out slip.json   # one fixed design
   covviz track clip.mp4 --box 120,80,40,60 --detector my-detector.json
 
 The runs need ground truth and the per-frame signals that covviz bench saves

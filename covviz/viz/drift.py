@@ -71,9 +71,9 @@ class DriftRecorder(Observer):
     def on_frame(self, frame, records, found) -> None:
         rec = self.stream
         self._last = frame
-        self.series.at(frame_number(frame.index), frame.time)
-        timed = False
         n = frame_number(frame.index)
+        self.series.at(n, frame.time)
+        timed = False
         for j, (paths, th, (p, new)) in enumerate(zip(self._paths, self._thresholds, found.drift_news)):
             if p is None:
                 continue
