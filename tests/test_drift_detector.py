@@ -33,6 +33,7 @@ from covviz.diagnosis.detector import (
     describe_alarm,
     family_of,
     feature_names,
+    gate_probability,
     history_features,
     shipped_model,
 )
@@ -748,8 +749,8 @@ def _gate_runs(rng, n_runs=4, n=160):
     return runs
 
 
-def test_choose_gate_silences_the_alarms_the_colour_disowns(rng, tmp_path):
-    from covviz.diagnosis.calibrate import choose_gate
+def test_the_chosen_gate_silences_the_alarms_the_colour_disowns(rng, tmp_path):
+    from covviz.diagnosis.calibrate import choose_rule
 
     runs = _gate_runs(rng)
     m = fit_model(runs, "manifold", design="signal:slip")
@@ -782,11 +783,11 @@ def test_choose_gate_silences_the_alarms_the_colour_disowns(rng, tmp_path):
     for r in runs:
         r.rows[:, SIGNALS.index("colour")] = np.nan
     probs = [m.probability(history_features(r.rows[:, m.columns], m.signals, m.design)) for r in runs]
-    assert choose_gate(probs, runs, m.alarm) is None
+    assert choose_rule(probs, runs)[1] is None
 
 
 def test_a_gate_that_does_not_help_is_not_chosen(rng):
-    from covviz.diagnosis.calibrate import choose_gate
+    from covviz.diagnosis.calibrate import choose_rule
 
     runs = _gate_runs(rng)
     for r in runs:  # the colour lost at the shake too: it cannot tell the two apart
@@ -794,4 +795,38 @@ def test_a_gate_that_does_not_help_is_not_chosen(rng):
     m = fit_model(runs, "manifold", design="signal:slip")
     assert m.gate is None
     probs = [m.probability(history_features(r.rows[:, m.columns], m.signals, m.design)) for r in runs]
-    assert choose_gate(probs, runs, m.alarm) is None
+    assert choose_rule(probs, runs)[1] is None
+
+
+def test_the_rule_and_the_gate_are_chosen_together(rng):
+    """Half the losses slide strongly, half weakly, and the signal shakes on track between the two heights.
+    Without the gate the rule's precision is reached only above the shakes (half the losses found); a gate
+    chosen after that threshold adds nothing. Chosen together, the gate silences the shakes and the
+    threshold comes down to the weak slides: every loss found, no false alarm."""
+    from covviz.diagnosis.calibrate import choose_alarm, choose_rule
+
+    k, c = SIGNALS.index("slip"), SIGNALS.index("colour")
+    runs = []
+    for j in range(8):
+        n = 160
+        iou = np.r_[np.full(100, 0.8), np.full(30, 0.02), np.full(n - 130, 0.8)]
+        rows = np.full((n, len(SIGNALS)), np.nan)
+        rows[:, k] = np.abs(rng.normal(0, 0.05, n))
+        rows[95:100, k] = 2.0 if j % 2 else 0.8  # the slide off the target: strong or weak
+        rows[30:34, k] = rows[60:64, k] = 1.0  # two shakes on track, above the weak slides
+        rows[:, c] = rng.uniform(-0.1, 0.2, n)
+        rows[90:130, c] = 1.2  # the box no longer stands out: the loss
+        runs.append(_run(iou, rows, seq=f"S{j}"))
+    m = fit_model(runs, "manifold", design="signal:slip")
+    probs = [m.probability(history_features(r.rows[:, m.columns], m.signals, m.design)) for r in runs]
+
+    def pooled(rule, gate):
+        ps = probs if gate is None else [gate_probability(p, r.rows[:, c], gate) for p, r in zip(probs, runs)]
+        return [score_alarms(alarm_frames(p, rule), r) for p, r in zip(ps, runs)]
+
+    first = pooled(choose_alarm(probs, runs), None)  # the threshold first, without the gate
+    assert sum(x["found"] for x in first) == 4 and sum(x["fp"] for x in first) == 0
+    rule, gate = choose_rule(probs, runs)
+    assert gate is not None and (rule, gate) == (m.alarm, m.gate)
+    both = pooled(rule, gate)
+    assert sum(x["found"] for x in both) == 8 and sum(x["fp"] for x in both) == 0

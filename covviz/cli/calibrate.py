@@ -29,9 +29,10 @@ its own last 30 frames, which carries over between scenes); or one signal alone
 (the flow gap, the slip, the FB error, PSR, ESS, the distance z-score or the colour: its
 own threshold alarm, with a calibrated probability). --design auto picks the candidate
 whose alarms hold up best on sequences held out in turn; the alarm threshold and
-hysteresis are chosen on the same runs, and then the colour gate (no alarm while the box
-stands out from its surroundings as the target did), if one finds more losses or as many
-with fewer false alarms there (see covviz/diagnosis/calibrate.py).
+hysteresis are chosen on the same runs together with the colour gate (no alarm while the
+box stands out from its surroundings as the target did): for no gate and each gate level,
+the threshold that finds the most losses at 50% precision; a gate is kept if it finds more
+losses, or as many with fewer false alarms (see covviz/diagnosis/calibrate.py).
 """
 
 

@@ -34,8 +34,9 @@ box's lost colour contrast against its surroundings, :mod:`covviz.diagnosis.sign
 the box still stands out from its surroundings as the target did, and the probability is 0 there. The
 motion signals fire on a box that shakes or snaps back onto its target as on one that slides off it; the
 colour tells them apart. :func:`~covviz.diagnosis.calibrate.fit_model` chooses the gate (or none) on the
-training runs with the alarm rule already fixed, by the same rule: a gate only silences frames (an alarm it
-silences may still be raised later in the episode, once the colour agrees).
+training runs together with the alarm rule, by the same rule (:func:`~covviz.diagnosis.calibrate.choose_rule`):
+a gate only silences frames (an alarm it silences may still be raised later in the episode, once the colour
+agrees), so with it a lower threshold may keep the rule's precision and find more losses.
 
 Shipped models, one per tracker family with a generic fallback, are package data under
 ``covviz/diagnosis/models/`` (:func:`shipped_model`); ``covviz calibrate``
