@@ -124,6 +124,8 @@ def loso_tables(runs, rng, target: str | None = None, results: dict | None = Non
               for q, d in res.get("designs", {}).items()]
         # most chosen first, ties in the order of the folds (a set's order changes from process to process)
         design = "; ".join(f"{d} {ds.count(d)}" for d in sorted(dict.fromkeys(ds), key=lambda d: -ds.count(d)))
+        if res.get("skipped"):  # folds where no candidate could be fitted: said, not silently dropped
+            design += "; not scored (no model fits its training runs): " + ", ".join(sorted(res["skipped"]))
         main.append(
             f"| `{tr}` | {s['runs']} | {s['losses']} | {_num(s['pr_auc'])} ({_pct(s['base_rate'])}) | {s['alarms']} "
             f"| {_pct(s['precision'])}{_ci(s['precision_ci'])} | {_pct(s['recall'])}{_ci(s['recall_ci'])} "

@@ -675,6 +675,35 @@ def test_choose_fit_weighs_single_signals_beside_the_models(rng):
                for (d, _), v in held.items() if d != design)
 
 
+
+def test_choose_fit_passes_over_a_winner_that_cannot_be_fitted_on_all_the_runs(rng, monkeypatch):
+    """A candidate that held up on every held-out sequence may still be refused by fit_model on all the runs
+    together (a single signal pointing the wrong way there): the next in rank is chosen, and a fold of the
+    leave-one-sequence-out where nothing fits is reported, not silently dropped."""
+    from covviz.diagnosis import calibrate as C
+
+    runs = _confounded_runs(rng)
+    sig = ("flow_gap", "ess")
+    designs = ("changes", "signal:flow_gap", "signal:ess")
+    assert choose_fit(runs, "manifold", sig, designs=designs)[:2] == ("signal:flow_gap", "off_track")
+    fit = C.fit_model
+
+    def refusing(rs, family, signals=None, feats=None, fit_info=None, design="levels", target=C.FIT_TARGET):
+        if design == "signal:flow_gap" and len(rs) == len(runs):
+            raise InputError("flow_gap: more trouble on it does not mean more frames off track on these runs")
+        return fit(rs, family, signals, feats, fit_info, design, target)
+
+    monkeypatch.setattr(C, "fit_model", refusing)
+    design, target, held = choose_fit(runs, "manifold", sig, designs=designs)
+    assert design != "signal:flow_gap" and (design, target) in held
+
+    def nothing(*a, **k):
+        raise InputError("nothing fits")
+
+    monkeypatch.setattr(C, "fit_model", nothing)
+    out = C.loso(runs, "manifold")
+    assert set(out["skipped"]) == {r.sequence for r in runs} and not out["model"]
+
 def test_calibrate_cli_offers_every_single_signal_the_fit_can_read():
     from covviz.cli.calibrate import _TROUBLE
     from covviz.diagnosis.calibrate import TROUBLE

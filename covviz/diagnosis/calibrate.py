@@ -555,10 +555,15 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
             p, rc = _pr(c)
             scores[d, t] = {"precision": round(p, 4) if np.isfinite(p) else None,
                             "recall": round(rc, 4) if np.isfinite(rc) else None}
-    if not keys:
-        return fallback
-    d, t = max(keys, key=keys.get)
-    return d, t, scores
+    # The best-ranked pair that can be fitted on all of ``runs`` (a single signal that held up on every
+    # 13-sequence subset may still point the wrong way on all of them together: fit_model refuses it).
+    for d, t in sorted(keys, key=keys.get, reverse=True):
+        try:
+            fit_model(runs, family, signals, feats[d], design=d, target=t)
+        except InputError:
+            continue
+        return d, t, scores
+    return fallback[:2] + (scores,)
 
 
 def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray] | None = None,
@@ -700,7 +705,8 @@ def loso(runs: list[Run], tracker: str, family: str | None = None, target: str |
                                     TARGETS if target is None else (target,))
         try:
             m = fit_model(train, family, signals, [feats[design][id(r)] for r in train], design=design, target=tgt)
-        except InputError:
+        except InputError as exc:  # no candidate fits the training runs: the fold is reported, not scored
+            out.setdefault("skipped", {})[q] = str(exc)
             continue
         out["designs"][q] = design
         out["targets"][q] = tgt
