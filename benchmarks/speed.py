@@ -223,7 +223,8 @@ def whole_process(sequence, n_frames: int, repeat: int, update_dt: float | None 
     results written); the two alternate, ``repeat`` times each, and the ratio is taken pair by pair.
     ``update_dt``: the default tracker's ``update()`` alone, seconds a frame, timed above in this run
     (600 particles, the default config): then each manifold run's wall time per tracked frame is
-    also given as a multiple of it (issue 23's goal: at most 1.25), start-up included.
+    also given as a multiple of it (issue 23's goal: at most 1.25), start-up included, and without the
+    start-up (a run of the same command tracking one frame, after each pair).
     """
     cmd = [sys.executable, "-m", "covviz.cli", "track", *([] if sequence is None else [str(sequence)]),
            "--max-frames", str(n_frames), "--no-save", "--no-progress"]

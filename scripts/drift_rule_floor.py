@@ -25,21 +25,21 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
+from drift_eval import TRACKERS, goals, loso_tables  # this folder is on sys.path when run as a script
 
 
-def _one(bench_dir: str, tracker: str, seeds: set[int], floor: float) -> tuple[float, dict]:
-    """The leave-one-sequence-out summary of every method with the rule's floor at ``floor``."""
+def _one(bench_dir: str, tracker: str, seeds: set[int], floor: float) -> tuple[float, list[str], list[str]]:
+    """drift_eval's single-signal table and goal lines for ``tracker`` with the rule's floor at ``floor``."""
     from covviz.diagnosis import calibrate
+    from covviz.threads import limit_threads
 
     calibrate.MIN_PRECISION = floor  # read by the rule's order (calibrate._rule_key) at each call
     runs = calibrate.load_runs(bench_dir, seeds=seeds)
-    res = calibrate.loso(runs, tracker)
-    out = {}
-    for name in ("model", *calibrate.BASELINES):
-        if res.get(name):
-            s = calibrate.summarise(res[name], np.random.default_rng(0))
-            out[name] = {k: s[k] for k in ("precision", "recall", "found", "losses", "tp", "fp", "false_per_1000")}
-    return floor, out
+    with limit_threads(1):
+        res = calibrate.loso(runs, tracker)
+    _, base, found = loso_tables([r for r in runs if r.tracker == tracker], np.random.default_rng(0),
+                                 results={(tracker, None): res})
+    return floor, base, goals(found)
 
 
 def main(argv=None) -> int:
@@ -47,7 +47,7 @@ def main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("bench_dir")
-    ap.add_argument("--tracker", default="manifold")
+    ap.add_argument("--tracker", default="manifold", choices=TRACKERS)
     ap.add_argument("--seeds", default="0-5", help="the runs' seeds to use (default 0-5)")
     ap.add_argument("--floors", default="0.5,0.6,0.7", help="the rule's precision floors (default 0.5,0.6,0.7)")
     ap.add_argument("--jobs", type=int, default=1, help="floors evaluated at a time, each in a process")
@@ -58,20 +58,11 @@ def main(argv=None) -> int:
     seeds = parse_seeds(args.seeds)
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as ex:
         done = list(ex.map(_one, *zip(*[(args.bench_dir, args.tracker, seeds, f) for f in floors])))
-    print(f"{args.tracker}, seeds {args.seeds}, leave one sequence out: held-out event precision / recall "
-          f"(found of losses), false alarms per 1000 on-track frames")
-    for floor, out in done:
+    print(f"{args.tracker}, seeds {args.seeds}, leave one sequence out, the rule's precision floor for the model "
+          "and every signal alike:")
+    for floor, base, said in done:
         print(f"\nfloor {floor:g}:")
-        print("| method | precision | recall | found | false / 1000 |")
-        print("|---|---:|---:|---:|---:|")
-        for name, s in out.items():
-            print(f"| {name} | {100 * s['precision']:.0f}% | {100 * s['recall']:.0f}% | {s['found']} of {s['losses']} "
-                  f"| {s['false_per_1000']:.1f} |")
-        m = out.get("model")
-        if m:
-            behind = [n for n, s in out.items() if n != "model"
-                      and not (m["precision"] > s["precision"] and m["recall"] > s["recall"])]
-            print(f"model ahead of every single signal on both: {'yes' if not behind else 'no (' + ', '.join(behind) + ')'}")
+        print("\n".join(base + said))
     return 0
 
 
