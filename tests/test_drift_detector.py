@@ -704,6 +704,52 @@ def test_choose_fit_passes_over_a_winner_that_cannot_be_fitted_on_all_the_runs(r
     out = C.loso(runs, "manifold")
     assert set(out["skipped"]) == {r.sequence for r in runs} and not out["model"]
 
+def test_choose_fit_hands_back_each_runs_probability_from_the_fold_that_held_it_out(rng):
+    from covviz.diagnosis.calibrate import _design
+
+    runs = _confounded_runs(rng)
+    sig = ("flow_gap", "ess")
+    held: dict = {}
+    choose_fit(runs, "manifold", sig, designs=("changes", "signal:flow_gap"), held_out=held)
+    assert set(held) == {("changes", "episodes"), ("changes", "off_track"), ("signal:flow_gap", "off_track")}
+    feats = _design(runs, sig, "changes")
+    for i in (0, 5):  # the probability of the model fitted without run i's sequence, nothing else
+        m = fit_model([r for r in runs if r.sequence != runs[i].sequence], "manifold", sig,
+                      [f for f, r in zip(feats, runs) if r.sequence != runs[i].sequence], design="changes",
+                      target="episodes")
+        np.testing.assert_array_equal(held["changes", "episodes"][i], m.probability(feats[i]))
+
+
+def test_a_models_alarm_rule_is_chosen_on_the_held_out_probabilities_when_given(rng):
+    from covviz.diagnosis.calibrate import _design, choose_rule
+
+    runs = _confounded_runs(rng)
+    sig = ("flow_gap", "ess")
+    held: dict = {}
+    choose_fit(runs, "manifold", sig, designs=("changes", "signal:flow_gap"), held_out=held)
+    feats = _design(runs, sig, "changes")
+    own = fit_model(runs, "manifold", sig, feats, design="changes", target="episodes")
+    cross = fit_model(runs, "manifold", sig, feats, design="changes", target="episodes",
+                      rule_probs=held["changes", "episodes"])
+    # the same fit; only the rule (and gate) differ, chosen on the probabilities of the folds
+    np.testing.assert_array_equal(cross.coef, own.coef)
+    assert (cross.alarm, cross.gate) == choose_rule(held["changes", "episodes"], runs)
+    assert cross.fit["rule_on"] == "held-out" and own.fit["rule_on"] == "fit"
+    # a fold that could not be fitted leaves the rule on the model's own probabilities
+    partial = [None, *held["changes", "episodes"][1:]]
+    assert fit_model(runs, "manifold", sig, feats, design="changes", target="episodes",
+                     rule_probs=partial).fit["rule_on"] == "fit"
+    # a single signal's model keeps the baseline's rule: a monotone map of the signal has nothing fitted to
+    # overfit its threshold to
+    one = fit_model(runs, "manifold", sig, design="signal:flow_gap", target="off_track",
+                    rule_probs=held["signal:flow_gap", "off_track"])
+    assert one.fit["rule_on"] == "fit"
+    # what covviz calibrate ships: the rule on the folds' probabilities of the design it chose
+    from covviz.diagnosis.calibrate import fit_design
+
+    assert fit_design(runs, "manifold", sig, design="changes").fit["rule_on"] == "held-out"
+
+
 def test_calibrate_cli_offers_every_single_signal_the_fit_can_read():
     from covviz.cli.calibrate import _TROUBLE
     from covviz.diagnosis.calibrate import TROUBLE

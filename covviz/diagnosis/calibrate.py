@@ -8,7 +8,11 @@ Everything here reads results on disk (``covviz bench`` folders): each run's
 The alarm rule (threshold, release, cooldown) of the model and of every single
 signal used as a baseline is chosen by :func:`choose_alarm` — the same rule for
 all — on the training runs only; the model's colour gate is chosen with its rule
-(:func:`choose_rule`).
+(:func:`choose_rule`). A model of many signals has them chosen on its training
+runs' held-out probabilities (each run's from the model of the design choice's fold
+that left its sequence out, :func:`fit_model`'s ``rule_probs``): on its own fitted
+probabilities the threshold that reaches the rule's precision is one a new
+sequence does not reach.
 
 What the model is fitted to find (:data:`TARGETS`): the frames of the *drift
 episodes* — each loss's window, from :data:`MATCH_BEFORE` frames before its drift
@@ -108,6 +112,9 @@ TROUBLE = {sig: sign for sig, sign in BASELINES.values()}
 #: What a ``signal`` design is fitted on: its alarms do not depend on it (the map is monotone), and with
 #: the off-track frames its probability reads as the chance of being off track at that level.
 SIGNAL_TARGET = "off_track"
+#: Whether a many-signal model's alarm rule is chosen on its training runs' held-out probabilities
+#: (:func:`fit_model`'s ``rule_probs``) rather than on its own fitted ones.
+RULE_ON_HELD_OUT = True
 #: The gates :func:`choose_rule` weighs (levels of the ``colour`` signal: the share of its first contrast lost).
 GATE_LEVELS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 
@@ -508,7 +515,7 @@ def choose_design(runs: list[Run], family: str, signals, feats: dict[str, list[n
 
 
 def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.ndarray]] | None = None,
-               targets=TARGETS, designs=None) -> tuple[str, str, dict]:
+               targets=TARGETS, designs=None, held_out: dict | None = None) -> tuple[str, str, dict]:
     """The feature design and the fit target (:data:`TARGETS`) whose models carry over best to unseen sequences.
 
     ``designs``: the candidate keys (default :func:`candidates` of ``signals``: the two models and each
@@ -523,6 +530,11 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
     With a single sequence nothing can be held out, and ``changes`` (the design made to carry over
     between scenes) is used with the first of ``targets``. Returns the design, the target and each
     pair's held-out precision and recall, keyed ``(design, target)``.
+
+    ``held_out``, if given, is filled with each pair's held-out probabilities, keyed ``(design, target)``:
+    one array per run of ``runs`` (in their order), from the model fitted without the run's sequence, or
+    None where that fold could not be fitted. :func:`fit_model` chooses the chosen pair's alarm rule on them
+    (its ``rule_probs``).
     """
     targets = tuple(targets)
     designs = candidates(signals) if designs is None else tuple(designs)
@@ -537,7 +549,7 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
     keys, scores = {}, {}
     for d in designs:
         for t in targets_of(d, targets):
-            counts = []
+            counts, probs = [], [None] * len(runs)
             for q in seqs:
                 tr = [i for i, r in enumerate(runs) if r.sequence != q]
                 te = [i for i, r in enumerate(runs) if r.sequence == q]
@@ -546,8 +558,11 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
                                   target=t)
                 except InputError:
                     continue
-                counts += [score_alarms(alarm_frames(m.gated(m.probability(feats[d][i]), runs[i].rows), m.alarm),
-                                        runs[i]) for i in te]
+                for i in te:
+                    probs[i] = m.probability(feats[d][i])
+                counts += [score_alarms(alarm_frames(m.gated(probs[i], runs[i].rows), m.alarm), runs[i]) for i in te]
+            if held_out is not None:
+                held_out[d, t] = probs
             if not counts:
                 continue
             c = _pool(counts)
@@ -567,12 +582,21 @@ def choose_fit(runs: list[Run], family: str, signals, feats: dict[str, list[np.n
 
 
 def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray] | None = None,
-              fit_info: dict | None = None, design: str = "levels", target: str = FIT_TARGET) -> DriftModel:
+              fit_info: dict | None = None, design: str = "levels", target: str = FIT_TARGET,
+              rule_probs: list | None = None) -> DriftModel:
     """A logistic drift model fitted on ``runs`` to find ``target`` (:func:`fit_target`), with its alarm
     rule chosen on them too.
 
     ``design``: a candidate key (:func:`candidates`); ``"signal:NAME"`` fits the ``signal`` design on that
     one signal. ``feats``, if given, are the runs' features of ``design`` (:func:`_design`).
+
+    ``rule_probs``: the runs' held-out probabilities (:func:`choose_fit`'s ``held_out``: each run's from a
+    model fitted without its sequence). Given for every run, a model of many signals has its alarm rule
+    and gate chosen on them rather than on its own fitted probabilities, which it has seen: on those the
+    threshold that reaches the rule's precision sits lower than the one that reaches it on a new
+    sequence (cross-fitted thresholds, as scikit-learn's ``TunedThresholdClassifierCV`` does; on the
+    default tracker's dev runs, leave one sequence out, ``docs/tuning.md``). A single signal's model keeps
+    the rule of its own probabilities: a monotone map of the signal, it has the baseline's rule.
 
     Raises
     ------
@@ -616,11 +640,13 @@ def fit_model(runs: list[Run], family: str, signals=None, feats: list[np.ndarray
         raise InputError(f"{signals[0]}: more trouble on it does not mean more frames off track on these runs")
     model = DriftModel(family, signals, center, scale, lr.coef_[0].copy(), float(lr.intercept_[0]),
                        Hysteresis(np.inf, np.inf, COOLDOWN), design=design)
-    probs = [model.probability(f) for f in feats]
+    held = design != "signal" and rule_probs is not None and all(p is not None for p in rule_probs)
+    probs = list(rule_probs) if held else [model.probability(f) for f in feats]
     rule, gate = choose_rule(probs, runs)
     info = {
         "off_track_iou": OFF_TRACK_IOU,
         "target": target,
+        "rule_on": "held-out" if held else "fit",
         "C": C_REG,
         "runs": len(runs),
         "sequences": sorted({r.sequence for r in runs}),
@@ -656,9 +682,11 @@ def fit_design(runs: list[Run], family: str, signals=None, fit_info: dict | None
         raise InputError(f"no single signal of {', '.join(TROUBLE)} among this family's signals")
     targets = TARGETS if target is None else (target,)
     feats = {d: _design(runs, signals, d) for d in designs}
-    design, target, held_out = choose_fit(runs, family, signals, feats, targets, designs)
+    probs: dict = {}
+    design, target, held_out = choose_fit(runs, family, signals, feats, targets, designs, probs)
     info = {**(fit_info or {}), "design_choice": {"held_out": {f"{d} {t}": v for (d, t), v in held_out.items()}}}
-    return fit_model(runs, family, signals, feats[design], info, design, target)
+    return fit_model(runs, family, signals, feats[design], info, design, target,
+                     probs.get((design, target)) if RULE_ON_HELD_OUT else None)
 
 
 def fit_families(runs: list[Run], fit_info: dict | None = None, design: str | None = None,
@@ -701,10 +729,12 @@ def loso(runs: list[Run], tracker: str, family: str | None = None, target: str |
         test = [r for r in pool if r.sequence == q and r.tracker == tracker]
         if not train or not test:
             continue
+        probs: dict = {}
         design, tgt, _ = choose_fit(train, family, signals, {d: [feats[d][id(r)] for r in train] for d in feats},
-                                    TARGETS if target is None else (target,))
+                                    TARGETS if target is None else (target,), held_out=probs)
         try:
-            m = fit_model(train, family, signals, [feats[design][id(r)] for r in train], design=design, target=tgt)
+            m = fit_model(train, family, signals, [feats[design][id(r)] for r in train], design=design, target=tgt,
+                          rule_probs=probs.get((design, tgt)) if RULE_ON_HELD_OUT else None)
         except InputError as exc:  # no candidate fits the training runs: the fold is reported, not scored
             out.setdefault("skipped", {})[q] = str(exc)
             continue
