@@ -204,6 +204,54 @@ def test_choose_alarm_finds_a_signal_that_rises_before_each_loss(rng):
     assert sum(x["fp"] for x in c) == 0
 
 
+
+def test_choose_alarm_does_not_buy_one_more_loss_with_many_false_alarms(rng, monkeypatch):
+    """Nine losses slide strongly, one weakly, at the height of six shakes on track. A threshold low enough
+    for the weak slide finds all ten losses at 62% precision (10 right, 6 false), above the floor: the
+    recall order takes it. Its one more loss costs six false alarms: the losses order (the default) and the
+    alarms order keep the threshold above the shakes, nine losses and no false alarm."""
+    from covviz.diagnosis import calibrate
+
+    runs, scores = [], []
+    for k in range(10):
+        iou = np.r_[np.full(100, 0.8), np.full(30, 0.02), np.full(30, 0.8)]
+        s = np.abs(rng.normal(0, 0.05, len(iou)))
+        s[95:100] = 2.0 if k < 9 else 0.8  # the slide off the target
+        if k < 6:
+            s[40:44] = 0.8  # a shake on track
+        runs.append(_run(iou, seq=f"S{k}"))
+        scores.append(s)
+
+    def pooled(rule):
+        c = [score_alarms(alarm_frames(s, rule), r) for s, r in zip(scores, runs)]
+        return sum(x["found"] for x in c), sum(x["tp"] for x in c), sum(x["fp"] for x in c)
+
+    assert calibrate.RULE_ORDER == "losses"
+    assert pooled(choose_alarm(scores, runs)) == (9, 9, 0)
+    monkeypatch.setattr(calibrate, "RULE_ORDER", "alarms")
+    assert pooled(choose_alarm(scores, runs)) == (9, 9, 0)
+    monkeypatch.setattr(calibrate, "RULE_ORDER", "recall")
+    assert pooled(choose_alarm(scores, runs)) == (10, 10, 6)
+
+
+def test_the_rule_order_puts_every_candidate_at_the_floor_above_every_one_below_it(monkeypatch):
+    from covviz.diagnosis import calibrate
+
+    def key(tp, fp, found, losses=10):
+        return calibrate._rule_key({"tp": tp, "fp": fp, "found": found, "losses": losses})
+
+    for order in ("losses", "alarms", "recall"):
+        monkeypatch.setattr(calibrate, "RULE_ORDER", order)
+        assert key(1, 1, 1) > key(9, 10, 9)  # 50% beats 47%, whatever it finds
+        assert key(5, 0, 5) > key(5, 1, 5)  # as much found: fewer false alarms
+    monkeypatch.setattr(calibrate, "RULE_ORDER", "losses")
+    assert key(9, 0, 9) > key(10, 6, 10)  # six false alarms cost more than the one loss they find
+    assert key(11, 1, 10) > key(9, 0, 8)  # two more losses for one false alarm: worth it
+    assert key(10, 0, 10) > key(20, 0, 9)  # a second alarm in a loss's window finds nothing more
+    monkeypatch.setattr(calibrate, "RULE_ORDER", "alarms")
+    assert key(20, 0, 9) > key(10, 0, 10)  # ... where the alarms order counts it
+
+
 # --------------------------------------------------------------------------- #
 # the model
 # --------------------------------------------------------------------------- #

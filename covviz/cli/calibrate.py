@@ -31,8 +31,9 @@ own threshold alarm, with a calibrated probability). --design auto picks the can
 whose alarms hold up best on sequences held out in turn; the alarm threshold and
 hysteresis are chosen on the same runs together with the colour gate (no alarm while the
 box stands out from its surroundings as the target did): for no gate and each gate level,
-the threshold that finds the most losses at 50% precision; a gate is kept if it finds more
-losses, or as many with fewer false alarms (see covviz/diagnosis/calibrate.py).
+of the thresholds whose alarms reach 50% precision, the one whose losses found less its false
+alarms are the most (one more loss is worth at most one more false alarm); a gate is kept if
+its alarms rank higher by the same order (see covviz/diagnosis/calibrate.py).
 """
 
 
