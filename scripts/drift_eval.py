@@ -323,7 +323,8 @@ def main(argv=None) -> int:
         "signals has its rule chosen on the 13 sequences' held-out probabilities (each from the fold of the "
         "design choice that left it out), not on the ones it was fitted on; the last column says what "
         "the 14 folds chose. Each single signal used as a baseline gets its own threshold on the same training "
-        "sequences by the same rule (the most event recall at a training precision ≥ 50%, else the best F1). "
+        "sequences by the same rule (of the thresholds at a training precision ≥ 50%, the one whose losses "
+        "found less its false alarms are the most, else the best F1). "
         f"Runs: seeds {', '.join(map(str, seeds))} of the particle filters, one run of each OpenCV tracker "
         "(deterministic); the OpenCV family's model is fitted on csrt, kcf and mil together."),
         "",
