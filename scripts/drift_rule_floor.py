@@ -64,7 +64,7 @@ def _one(bench_dir: str, tracker: str, seeds: set[int], floor: float, rule_on: s
 
 
 def main(argv=None) -> int:
-    from covviz.diagnosis.calibrate import parse_seeds
+    from covviz.diagnosis.calibrate import RULE_ORDERS, parse_seeds
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("bench_dir")
@@ -88,8 +88,8 @@ def main(argv=None) -> int:
     if not rule_on or set(rule_on) - {"fit", "held-out"}:
         ap.error(f"--rule-on: give fit, held-out or fit,held-out, not {args.rule_on!r}")
     orders = args.order.split(",")
-    if not orders or set(orders) - {"losses", "alarms", "recall"}:
-        ap.error(f"--order: give losses, alarms or recall (or several, comma-separated), not {args.order!r}")
+    if not orders or set(orders) - set(RULE_ORDERS):
+        ap.error(f"--order: give {', '.join(RULE_ORDERS)} (or several, comma-separated), not {args.order!r}")
     seeds = parse_seeds(args.seeds)
     jobs = [(args.bench_dir, args.tracker, seeds, f, r, args.models_only, o) for f in floors for r in rule_on
             for o in orders]

@@ -204,7 +204,6 @@ def test_choose_alarm_finds_a_signal_that_rises_before_each_loss(rng):
     assert sum(x["fp"] for x in c) == 0
 
 
-
 def test_choose_alarm_does_not_buy_one_more_loss_with_many_false_alarms(rng, monkeypatch):
     """Nine losses slide strongly, one weakly, at the height of six shakes on track. A threshold low enough
     for the weak slide finds all ten losses at 62% precision (10 right, 6 false), above the floor: the

@@ -119,6 +119,8 @@ MIN_PRECISION = 0.5
 #: found, so a second alarm in one loss's window counts as a find) or ``"recall"`` (the most event recall,
 #: then fewer false: the first order). The last two are kept for the comparison (``docs/tuning.md``).
 RULE_ORDER = "losses"
+#: The orders :data:`RULE_ORDER` may name.
+RULE_ORDERS = ("losses", "alarms", "recall")
 #: Single signals scored as baselines: name -> (signal, sign); the score is sign * signal (high = trouble).
 #: The issue's four, the flow gap (the strongest single signal on the dev runs) and the slip (the flow gap
 #: summed as a vector over recent frames).
@@ -358,12 +360,12 @@ def _rule_key(c: dict) -> tuple:
     f1 = 2 * p * rc / (p + rc) if p + rc else 0.0
     if not (p >= MIN_PRECISION and rc > 0):
         return (0, f1, -c["fp"])
-    w = MIN_PRECISION / (1 - MIN_PRECISION)
-    if RULE_ORDER == "losses":
-        return (1, c["found"] - w * c["fp"], rc, -c["fp"])
-    if RULE_ORDER == "alarms":
-        return (1, c["tp"] - w * c["fp"], rc, -c["fp"])
-    return (1, rc, -c["fp"])
+    if RULE_ORDER == "recall":
+        return (1, rc, -c["fp"])
+    if RULE_ORDER not in RULE_ORDERS:
+        raise ValueError(f"calibrate.RULE_ORDER: one of {', '.join(RULE_ORDERS)}, not {RULE_ORDER!r}")
+    finds = c["found"] if RULE_ORDER == "losses" else c["tp"]
+    return (1, finds - MIN_PRECISION / (1 - MIN_PRECISION) * c["fp"], rc, -c["fp"])
 
 
 def _rule_counts_py(v, th, rel, cooldown, first, last, iou, off_iou, out) -> None:
