@@ -82,3 +82,35 @@ def test_the_story_alarm_lane_spans_each_alarm_until_its_hysteresis_releases_it(
     temporal, _ = read_recording(path)
     lane = {f: v[-1] for f, v in temporal[P.TrackerPaths("manifold").story_lane("alarm")]["StateChange:state"].items()}
     assert lane == {3: ["alarm"], 6: [], 8: ["alarm"]}
+
+
+def test_the_alarm_lane_spans_a_dip_below_the_release_that_the_hysteresis_rides_out(tmp_path):
+    """An alarm whose probability dips below the release level for fewer frames than the cooldown and comes
+    back is one alarm ("frames 3-9" in the text): the lane's gap on the dip's first frame is overwritten when
+    the watch extends the alarm again, so the lane spans 3 to 9, as the text does (it used to end at 5)."""
+    from types import SimpleNamespace as NS
+
+    from viz_helpers import read_recording
+
+    from covviz.viz import paths as P
+    from covviz.viz.drift import DriftRecorder
+    from covviz.viz.sinks import attach_sinks, close_stream, new_recording
+
+    path = tmp_path / "dip.rrd"
+    stream = new_recording()
+    attach_sinks(stream, save=path)
+    rec = DriftRecorder(stream, series_seconds=None)
+    rec.on_start(NS(trackers=[NS(name="manifold")]), NS(drift=NS(threshold=lambda j: 0.6)))
+    # As DriftWatch does: raised on frame 3, extended on 4 and 5, below the release on 6 and 7, extended
+    # again on 8 and 9; released after frame 9 (the run ends on frame 12).
+    a = {"frame": 3, "probability": 0.7, "signals": {}, "drivers": [], "until": 3, "peak": 0.7}
+    for i in range(12):
+        n = i + 1
+        if n in (4, 5, 8, 9):
+            a["until"] = n
+        rec.on_frame(NS(index=i, time=0.1 * i), (), NS(drift_news=((0.65, (a,) if n == 3 else ()),)))
+    rec.on_end([], None)
+    close_stream(stream)
+    temporal, _ = read_recording(path)
+    lane = {f: v[-1] for f, v in temporal[P.TrackerPaths("manifold").story_lane("alarm")]["StateChange:state"].items()}
+    assert lane == {3: ["alarm"], 6: ["alarm"], 10: []}

@@ -12,12 +12,14 @@ runs before it, on the same background thread in ``covviz track``). The two seri
     trackers/<name>/events              TextLog: "drift alarm" rows (WARN)
     trackers/<name>/event_records       AnyValues: kind "alarm" (``covviz events`` reads them back)
     trackers/<name>/story/alarm         StateChange: "alarm" from an alarm's first frame, a null state on the
-                                        frame its hysteresis releases it (the story strip's alarm lane)
+                                        first frame past its "until" (the last at or above the release level
+                                        before its hysteresis released it; the story strip's alarm lane)
 """
 
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import rerun as rr
 
@@ -56,6 +58,7 @@ class DriftRecorder(Observer):
         self._paths: list[P.TrackerPaths] = []
         self._thresholds: list[float | None] = []
         self._open: list[dict | None] = []  # per tracker, the alarm the story's alarm lane shows now
+        self._gap: list[tuple | None] = []  # per tracker, the (index, time) of the open alarm's gap in the lane
         self._last = None
 
     def on_start(self, start, found) -> None:
@@ -63,6 +66,7 @@ class DriftRecorder(Observer):
         view = found.drift
         self._thresholds = [None if view is None else view.threshold(j) for j in range(len(self._paths))]
         self._open = [None] * len(self._paths)
+        self._gap = [None] * len(self._paths)
         for paths, th in zip(self._paths, self._thresholds):
             if th is not None:
                 self.stream.log(threshold_path(paths.name), rr.SeriesLines(
@@ -80,15 +84,25 @@ class DriftRecorder(Observer):
             self.series.add(probability_path(paths.name), p)
             if th is not None and frame.index % THRESHOLD_EVERY == 0:
                 self.series.add(threshold_path(paths.name), th)
-            # The watch extends an open alarm's "until" on every frame its probability stays above the release
-            # level; a frame past it is the one the hysteresis released it on.
-            released = self._open[j] is not None and self._open[j]["until"] < n
-            if (new or released) and not timed:
+            # The watch extends an open alarm's "until" on every frame its probability is at or above the release
+            # level, and releases it after its cooldown below. The lane's gap goes on the first frame past
+            # "until"; if the alarm is extended again before its release, the gap is overwritten (the same
+            # frame, logged later), so the lane spans the alarm's first frame to its "until" as the text does.
+            cur = self._open[j]
+            below = cur is not None and self._gap[j] is None and cur["until"] < n
+            back = cur is not None and self._gap[j] is not None and cur["until"] >= frame_number(self._gap[j][0])
+            if (new or below or back) and not timed:
                 P.set_frame_time(rec, frame)  # this thread's own time, for the alarms' rows and lane
                 timed = True
-            if released:
+            if below:
                 rec.log(paths.story_lane("alarm"), story.clear_state())
-                self._open[j] = None
+                self._gap[j] = (frame.index, frame.time)
+            if back:
+                index, time = self._gap[j]
+                P.set_frame_time(rec, SimpleNamespace(index=index, time=time))
+                rec.log(paths.story_lane("alarm"), rr.StateChange(state="alarm"))
+                P.set_frame_time(rec, frame)
+                self._gap[j] = None
             for a in new:
                 # The row's frame column says where; the body leads with what (its width cuts the end off).
                 text = f"drift alarm: {describe_alarm(a, span=False)} (label-free)"
@@ -98,7 +112,7 @@ class DriftRecorder(Observer):
                     tracker=[paths.name], kind=["alarm"], frame_number=[a["frame"]], level=["WARN"],
                     text=[viewer_safe(text)], cause=["drift"], details=[json.dumps(a, default=float)]))
                 rec.log(paths.story_lane("alarm"), rr.StateChange(state="alarm"))
-                self._open[j] = a
+                self._open[j], self._gap[j] = a, None
 
         self.series.tick()
 
