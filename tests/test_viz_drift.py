@@ -49,9 +49,9 @@ def test_track_logs_the_drift_probability_and_alarm_rows(tmp_path, capsys):
     assert {f: v[-1] for f, v in lane.items()} == {1: ["alarm"]}
 
 
-def test_the_story_alarm_lane_spans_each_alarm_until_its_hysteresis_releases_it(tmp_path):
-    """The recorder draws an alarm on the story strip from its first frame, and a gap from the frame the
-    watch stopped extending it (its probability fell below the release level)."""
+def _alarm_lane(tmp_path, frames) -> dict:
+    """The story strip's alarm lane ``{frame: state}`` a :class:`DriftRecorder` logs for one tracker, fed
+    ``frames``: per frame, a callable of its 1-based number giving ``(probability, new alarms, seconds)``."""
     from types import SimpleNamespace as NS
 
     from viz_helpers import read_recording
@@ -65,52 +65,45 @@ def test_the_story_alarm_lane_spans_each_alarm_until_its_hysteresis_releases_it(
     attach_sinks(stream, save=path)
     rec = DriftRecorder(stream, series_seconds=None)
     rec.on_start(NS(trackers=[NS(name="manifold")]), NS(drift=NS(threshold=lambda j: 0.6)))
+    for i, frame in enumerate(frames):
+        p, new, t = frame(i + 1)
+        rec.on_frame(NS(index=i, time=t), (), NS(drift_news=((p, new),)))
+    rec.on_end([], None)
+    close_stream(stream)
+    temporal, _ = read_recording(path)
+    return {f: v[-1] for f, v in temporal[P.TrackerPaths("manifold").story_lane("alarm")]["StateChange:state"].items()}
+
+
+def test_the_story_alarm_lane_spans_each_alarm_until_its_hysteresis_releases_it(tmp_path):
+    """The recorder draws an alarm on the story strip from its first frame, and a gap from the frame the
+    watch stopped extending it (its probability fell below the release level)."""
     # As DriftWatch does: an alarm raised on frame 3 and extended ("until") on frames 4 and 5; then a
     # second one on frame 8, open at the end of the run.
     first = {"frame": 3, "probability": 0.7, "signals": {}, "drivers": [], "until": 3, "peak": 0.7}
     second = {**first, "frame": 8, "until": 8}
-    for i in range(9):
-        n = i + 1
+
+    def frame(n):
         if n in (4, 5):
             first["until"] = n
         if n == 9:
             second["until"] = n
         new = (first,) if n == 3 else (second,) if n == 8 else ()
-        rec.on_frame(NS(index=i, time=None), (), NS(drift_news=((0.65 if new else 0.2, new),)))
-    rec.on_end([], None)
-    close_stream(stream)
-    temporal, _ = read_recording(path)
-    lane = {f: v[-1] for f, v in temporal[P.TrackerPaths("manifold").story_lane("alarm")]["StateChange:state"].items()}
-    assert lane == {3: ["alarm"], 6: [], 8: ["alarm"]}
+        return (0.65 if new else 0.2), new, None
+
+    assert _alarm_lane(tmp_path, [frame] * 9) == {3: ["alarm"], 6: [], 8: ["alarm"]}
 
 
 def test_the_alarm_lane_spans_a_dip_below_the_release_that_the_hysteresis_rides_out(tmp_path):
     """An alarm whose probability dips below the release level for fewer frames than the cooldown and comes
     back is one alarm ("frames 3-9" in the text): the lane's gap on the dip's first frame is overwritten when
     the watch extends the alarm again, so the lane spans 3 to 9, as the text does (it used to end at 5)."""
-    from types import SimpleNamespace as NS
-
-    from viz_helpers import read_recording
-
-    from covviz.viz import paths as P
-    from covviz.viz.drift import DriftRecorder
-    from covviz.viz.sinks import attach_sinks, close_stream, new_recording
-
-    path = tmp_path / "dip.rrd"
-    stream = new_recording()
-    attach_sinks(stream, save=path)
-    rec = DriftRecorder(stream, series_seconds=None)
-    rec.on_start(NS(trackers=[NS(name="manifold")]), NS(drift=NS(threshold=lambda j: 0.6)))
     # As DriftWatch does: raised on frame 3, extended on 4 and 5, below the release on 6 and 7, extended
     # again on 8 and 9; released after frame 9 (the run ends on frame 12).
     a = {"frame": 3, "probability": 0.7, "signals": {}, "drivers": [], "until": 3, "peak": 0.7}
-    for i in range(12):
-        n = i + 1
+
+    def frame(n):
         if n in (4, 5, 8, 9):
             a["until"] = n
-        rec.on_frame(NS(index=i, time=0.1 * i), (), NS(drift_news=((0.65, (a,) if n == 3 else ()),)))
-    rec.on_end([], None)
-    close_stream(stream)
-    temporal, _ = read_recording(path)
-    lane = {f: v[-1] for f, v in temporal[P.TrackerPaths("manifold").story_lane("alarm")]["StateChange:state"].items()}
-    assert lane == {3: ["alarm"], 6: ["alarm"], 10: []}
+        return 0.65, (a,) if n == 3 else (), 0.1 * (n - 1)
+
+    assert _alarm_lane(tmp_path, [frame] * 12) == {3: ["alarm"], 6: ["alarm"], 10: []}
