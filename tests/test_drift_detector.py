@@ -804,6 +804,15 @@ def test_calibrate_cli_offers_every_single_signal_the_fit_can_read():
     assert set(_TROUBLE) == set(TROUBLE)
 
 
+def test_calibrate_prints_a_saturated_threshold_with_the_digits_that_tell_it_from_one():
+    from covviz.cli.calibrate import _level
+
+    assert _level(0.309138) == "0.309"
+    assert _level(0.9997079) == "0.9997"  # IPCA's shipped model: not "p >= 1.000"
+    assert _level(0.00004) == "0.00004"
+    assert _level(1.0) == "1.000" and _level(0.0) == "0.000"
+
+
 # --------------------------------------------------------------------------- #
 # the colour signal and the gate
 # --------------------------------------------------------------------------- #

@@ -138,5 +138,15 @@ def _describe(m) -> str:
     design = f"{m.design} design ({m.signals[0]})" if m.design == "signal" else f"{m.design} design"
     return (f"{design}, {f['runs']} runs, {f['frames']} frames ({f['positive_frames']} {found}), "
             f"{f['losses']} losses; "
-            f"alarm at p >= {m.alarm.threshold:.3f}, released below {m.alarm.release:.3f}"
+            f"alarm at p >= {_level(m.alarm.threshold)}, released below {_level(m.alarm.release)}"
             + ("" if m.gate is None else f", silenced while colour < {m.gate:g}"))
+
+
+def _level(p: float) -> str:
+    """A probability level to 3 decimals, or as many more as it takes not to read as 0 or 1 when it is neither
+    (a saturated model's threshold of 0.99971 is not "p >= 1.000")."""
+    for d in range(3, 10):
+        s = f"{p:.{d}f}"
+        if 0.0 < float(s) < 1.0 or not 0.0 < p < 1.0:
+            return s
+    return s
