@@ -797,6 +797,29 @@ def test_a_models_alarm_rule_is_chosen_on_the_held_out_probabilities_when_given(
     assert fit_design(runs, "manifold", sig, design="changes").fit["rule_on"] == "held-out"
 
 
+def test_calibrate_says_how_its_model_did_on_held_out_sequences(tmp_path, rng, capsys):
+    """The line under the model: the chosen candidate's held-out recall and precision from the file's own
+    design choice, the same numbers; a fixed design has none and says so."""
+    from covviz.cli import main
+    from covviz.cli.calibrate import _held_out
+
+    _fake_bench(tmp_path, rng)
+    out = tmp_path / "det.json"
+    assert main(["calibrate", str(tmp_path / "bench"), "--out", str(out)]) == 0
+    m = DriftModel.load(out)
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[-1] == f"  {_held_out(m)}"
+    key = f"{m.design}:{m.signals[0]}" if m.design == "signal" else m.design
+    got = m.fit["design_choice"]["held_out"][f"{key} {m.fit['target']}"]
+    if got["recall"] is not None and got["precision"] is not None:
+        assert f"{100 * got['recall']:.0f}% of the losses at {100 * got['precision']:.0f}% precision" in printed[-1]
+    else:
+        assert printed[-1].startswith("  no held-out estimate")
+    fixed = DriftModel(m.family, m.signals, m.center, m.scale, m.coef, m.intercept, m.alarm,
+                       {**m.fit, "design_choice": {"held_out": {}}}, m.design, m.gate)
+    assert _held_out(fixed).startswith("no held-out estimate")
+
+
 def test_calibrate_cli_offers_every_single_signal_the_fit_can_read():
     from covviz.cli.calibrate import _TROUBLE
     from covviz.diagnosis.calibrate import TROUBLE

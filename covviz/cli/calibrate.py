@@ -108,11 +108,13 @@ def cmd_calibrate(args) -> int:
         for fam, m in fit_families(runs, info, design, target).items():
             path = m.save(args.all_families / f"{fam}.json")
             print(f"{fam}: {_describe(m)} -> {path}")
+            print(f"  {_held_out(m)}")
         return 0
     fams = {family_of(r.tracker) for r in runs}
     fam = fams.pop() if len(fams) == 1 else "generic"
     m = fit_design(runs, fam, fit_info=info, target=target, design=design)
     print(f"{m.family}: {_describe(m)} -> {m.save(args.out)}")
+    print(f"  {_held_out(m)}")
     return 0
 
 
@@ -140,6 +142,22 @@ def _describe(m) -> str:
             f"{f['losses']} losses; "
             f"alarm at p >= {_level(m.alarm.threshold)}, released below {_level(m.alarm.release)}"
             + ("" if m.gate is None else f", silenced while colour < {m.gate:g}"))
+
+
+def _held_out(m) -> str:
+    """How the fitted model's candidate did on sequences it had not seen, from its file's design choice
+    (:func:`covviz.diagnosis.calibrate.choose_fit`: each of the runs' sequences held out in turn), for the user
+    to know how far to trust it before using it."""
+    choice = ((m.fit or {}).get("design_choice") or {}).get("held_out") or {}
+    key = f"{m.design}:{m.signals[0]}" if m.design == "signal" else m.design
+    got = choice.get(f"{key} {m.fit.get('target', 'off_track')}")
+    if not got or got.get("precision") is None or got.get("recall") is None:
+        return ("no held-out estimate (one candidate, or a single sequence): score it on other labelled runs "
+                "before trusting its alarms")
+    n = len(m.fit.get("sequences") or ())
+    return (f"held out (each of the {n} sequences left out in turn): its alarms found {100 * got['recall']:.0f}% "
+            f"of the losses at {100 * got['precision']:.0f}% precision; the best of {len(choice)} candidates "
+            "there, so read it as an upper estimate for a new video")
 
 
 def _level(p: float) -> str:
