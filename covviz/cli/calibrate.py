@@ -148,23 +148,24 @@ def _held_out(m) -> str:
     """How the fitted model's candidate did on sequences it had not seen, from its file's design choice
     (:func:`covviz.diagnosis.calibrate.choose_fit`: each of the runs' sequences held out in turn), for the user
     to know how far to trust it before using it."""
-    choice = ((m.fit or {}).get("design_choice") or {}).get("held_out") or {}
-    key = f"{m.design}:{m.signals[0]}" if m.design == "signal" else m.design
-    got = choice.get(f"{key} {m.fit.get('target', 'off_track')}")
+    from covviz.diagnosis.calibrate import held_out_score
+
+    got, candidates = held_out_score(m)
     if not got or got.get("precision") is None or got.get("recall") is None:
         return ("no held-out estimate (one candidate, or a single sequence): score it on other labelled runs "
                 "before trusting its alarms")
     n = len(m.fit.get("sequences") or ())
     return (f"held out (each of the {n} sequences left out in turn): its alarms found {100 * got['recall']:.0f}% "
-            f"of the losses at {100 * got['precision']:.0f}% precision; the best of {len(choice)} candidates "
+            f"of the losses at {100 * got['precision']:.0f}% precision; the best of {candidates} candidates "
             "there, so read it as an upper estimate for a new video")
 
 
 def _level(p: float) -> str:
     """A probability level to 3 decimals, or as many more as it takes not to read as 0 or 1 when it is neither
     (a saturated model's threshold of 0.99971 is not "p >= 1.000")."""
-    for d in range(3, 10):
+    s = f"{p:.3f}"
+    for d in range(4, 10):
+        if not 0.0 < p < 1.0 or 0.0 < float(s) < 1.0:
+            break
         s = f"{p:.{d}f}"
-        if 0.0 < float(s) < 1.0 or not 0.0 < p < 1.0:
-            return s
     return s

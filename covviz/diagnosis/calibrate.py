@@ -714,9 +714,22 @@ def fit_design(runs: list[Run], family: str, signals=None, fit_info: dict | None
     feats = {d: _design(runs, signals, d) for d in designs}
     probs: dict = {}
     design, target, held_out = choose_fit(runs, family, signals, feats, targets, designs, probs)
-    info = {**(fit_info or {}), "design_choice": {"held_out": {f"{d} {t}": v for (d, t), v in held_out.items()}}}
+    info = {**(fit_info or {}), "design_choice": {"held_out": {_choice_key(d, t): v for (d, t), v in held_out.items()}}}
     return fit_model(runs, family, signals, feats[design], info, design, target,
                      probs.get((design, target)) if RULE_ON_HELD_OUT else None)
+
+
+def _choice_key(key: str, target: str) -> str:
+    """How a model file's ``fit.design_choice.held_out`` names a candidate (:func:`candidates`) and its target."""
+    return f"{key} {target}"
+
+
+def held_out_score(model: DriftModel) -> tuple[dict | None, int]:
+    """The held-out precision and recall of the candidate ``model`` is (its file's design choice, written by
+    :func:`fit_design`), or None where the file has none for it; and how many candidates that choice weighed."""
+    choice = ((model.fit or {}).get("design_choice") or {}).get("held_out") or {}
+    key = f"signal:{model.signals[0]}" if model.design == "signal" else model.design
+    return choice.get(_choice_key(key, (model.fit or {}).get("target", SIGNAL_TARGET))), len(choice)
 
 
 def fit_families(runs: list[Run], fit_info: dict | None = None, design: str | None = None,
