@@ -184,6 +184,38 @@ def test_no_jit_environment_selects_the_numpy_path():
     assert "numpy path" in out.stdout
 
 
+def test_kernels_load_without_importing_scipy_linalg_and_it_still_imports_after():
+    # numba's BLAS probe (numba.np.arraymath) would import all of scipy.linalg at the first cached kernel's
+    # load; covviz.model.kernels refuses it for that import only. The kernels still load and agree with the
+    # numpy reference, jitted linear algebra still works (it imports scipy when compiled), and scipy.linalg
+    # imports normally afterwards.
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from covviz.model import kernels\n"
+        "from covviz.model.spd import distance_riemann_log\n"
+        "assert kernels.JIT_ENABLED\n"
+        "rng = np.random.default_rng(0)\n"
+        "A = rng.normal(size=(3, 9, 9)); L = 0.1 * (A + A.transpose(0, 2, 1))\n"
+        "B = rng.normal(size=(3, 9, 20)); C = B @ B.transpose(0, 2, 1) / 20 + np.eye(9)\n"
+        "d = kernels.template_distances_fast(L, C)\n"
+        "assert 'scipy.linalg' not in sys.modules, 'scipy.linalg imported with the kernels'\n"
+        "assert np.allclose(d, [distance_riemann_log(L[i:i+1], C[i])[0] for i in range(3)], rtol=1e-10)\n"
+        "import numba\n"
+        "assert np.allclose(numba.njit(lambda m: np.linalg.inv(m))(C[0]) @ C[0], np.eye(9), atol=1e-8)\n"
+        "import scipy.linalg\n"
+        "assert not any(type(f).__name__ == '_NoScipyLinalg' for f in sys.meta_path)\n"
+        "print('ok', scipy.linalg.eigh(C[0])[0].min() > 0)\n"
+    )
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
+    out = subprocess.run([sys.executable, "-c", code], check=False, env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["ok", "True"]
+
+
 def test_warmup_compiles_everything_and_reports_the_cache(monkeypatch):
     assert kernels.warmup() >= 0.0
     assert kernels.kernels_cached()  # every entry point is now in numba's on-disk cache

@@ -64,8 +64,10 @@ loads) everything.
 
 from __future__ import annotations
 
+import importlib.abc
 import math
 import os
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -77,11 +79,52 @@ from covviz.model.features import FEATURE_SCALE, N_FEATURES
 #: ``COVVIZ_NO_JIT=1`` (or ``true``/``yes``): the numpy path, and numba is not even imported.
 _DISABLED = os.environ.get("COVVIZ_NO_JIT", "").strip().lower() in ("1", "true", "yes")
 numba = None
+
+
+class _NoScipyLinalg(importlib.abc.MetaPathFinder):
+    """Refuses ``scipy.linalg`` (and its ``cython_blas``) to the thread that made it, while it is on ``sys.meta_path``."""
+
+    def __init__(self) -> None:
+        self.owner = threading.get_ident()
+
+    def find_spec(self, name, path=None, target=None):
+        if name in ("scipy.linalg", "scipy.linalg.cython_blas") and threading.get_ident() == self.owner:
+            raise ImportError(f"{name}: not imported at start-up (covviz.model.kernels)")
+        return None
+
+
+def _import_numba_arraymath() -> None:
+    """Import ``numba.np.arraymath`` without its BLAS probe importing ``scipy.linalg`` (~0.15-0.25 s of start-up).
+
+    numba builds its target registries at the first load of a cached kernel, and one of them,
+    ``numba.np.arraymath``, asks at import whether BLAS is there by importing
+    ``scipy.linalg.cython_blas`` — all of ``scipy.linalg``, which nothing on ``covviz track``'s path
+    needs: these kernels use no ``np.dot`` and no ``np.linalg``. Refused while arraymath is
+    imported, the probe finds no BLAS, and the one thing that changes in this process is that a
+    jitted ``np.dot`` of two vectors uses numba's own loop instead of BLAS (its other linear algebra
+    imports scipy when it is compiled, as before). Nothing is refused if scipy.linalg or arraymath
+    are already imported (the recorder's MDS imports scipy.linalg; then the probe costs nothing).
+    """
+    if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
+        return
+    finder = _NoScipyLinalg()
+    sys.meta_path.insert(0, finder)
+    try:
+        import numba.np.arraymath  # noqa: F401
+    finally:
+        sys.meta_path.remove(finder)
+
+
 if not _DISABLED:
     try:
         import numba
     except ImportError:  # pragma: no cover - numba is a dependency; the numpy path must not need it
         numba = None
+    else:
+        try:
+            _import_numba_arraymath()
+        except ImportError:  # pragma: no cover - an arraymath that will not import alone: the registries import it
+            pass
 
 __all__ = [
     "JIT_ENABLED",
