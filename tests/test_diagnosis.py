@@ -244,6 +244,55 @@ def test_diagnoser_scores_the_truth_through_the_trackers_own_model():
     assert ev.d_truth == pytest.approx(d_truth, rel=1e-9)
 
 
+@pytest.mark.parametrize("name", ["illumination", "distractor"])
+def test_without_on_track_scores_the_diagnosis_is_the_same(name):
+    # covviz track without a recorder (and bench) skip the template cloud's scores at the truth and the
+    # estimate on on-track frames: nothing but a recorder reads them there. The labels, events,
+    # diagnoses and report are the same as with them, and so is every other piece of evidence.
+    from dataclasses import fields
+
+    from covviz.data.scenarios import SCENARIOS, open_scenario
+
+    seq = open_scenario(name)
+    tr = ManifoldTracker(ManifoldConfig(n_particles=60), rng=0)
+    full, lazy = Diagnoser(), Diagnoser(on_track_scores=False)
+    run_many([tr], seq, [full, lazy], max_frames=SCENARIOS[name].onset + 40)
+    assert full.report(0) == lazy.report(0) and full.report(0)["diagnoses"]
+    scores = {"d_truth", "d_est", "best_truth", "best_est", "term_gaps"}
+    a, b = full.states[0].history, lazy.states[0].history
+    labels = {ev.label for ev in a}
+    assert "ok" in labels and len(labels) > 1
+    for ea, eb in zip(a, b, strict=True):
+        assert ea.label == eb.label
+        for f in fields(ea):
+            x, y = getattr(ea, f.name), getattr(eb, f.name)
+            if f.name in scores and ea.label == "ok":
+                assert y is None or np.isnan(y), (ea.frame, f.name)
+                assert x is not None and (isinstance(x, dict) or np.isfinite(x))
+            elif isinstance(x, np.ndarray) or isinstance(x, float):
+                assert np.array_equal(x, y, equal_nan=True), (ea.frame, f.name)
+            else:
+                assert x == y, (ea.frame, f.name)
+
+
+def test_track_scores_on_track_frames_only_when_recording(monkeypatch, tmp_path):
+    from covviz.cli import main
+
+    made = []
+    real = Diagnoser.__init__
+
+    def spy(self, *a, **k):
+        real(self, *a, **k)
+        made.append(self.on_track_scores)
+
+    monkeypatch.setattr(Diagnoser, "__init__", spy)
+    assert main(["track", "--max-frames", "3", "--no-save", "--no-progress", "--out", str(tmp_path)]) == 0
+    assert made == [False]
+    rrd = tmp_path / "r.rrd"
+    assert main(["track", "--max-frames", "3", "--save", str(rrd), "--no-progress", "--out", str(tmp_path / "b")]) == 0
+    assert made[1] is True and rrd.exists()
+
+
 def test_suspects_without_ground_truth(rng):
     dg = Diagnoser()
     seq = SyntheticSequence(SyntheticConfig(n_frames=3))

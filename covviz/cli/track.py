@@ -280,7 +280,8 @@ def _track(args) -> int:
         _check_out_dir(args.out, created)
         trackers = _make_trackers(args.trackers, args.seed, args.particles, getattr(args, "config", None))
         _threads_for_recording(args, trackers)
-        stages = [Diagnoser()]
+        # The template cloud's scores on on-track frames: only a recorder shows them.
+        stages = [Diagnoser(on_track_scores=_recorded(args))]
         replays = _counterfactuals(args, seq, n_frames, trackers)
         if replays is not None:
             stages.append(replays)

@@ -839,8 +839,14 @@ class Diagnoser(Observer):
     the :class:`FrameNews` of every tracker (:attr:`Findings.news`).
     """
 
-    def __init__(self, config: DiagnosisConfig | None = None):
+    def __init__(self, config: DiagnosisConfig | None = None, on_track_scores: bool = True):
         self.config = config or DiagnosisConfig()
+        #: Whether the template cloud is scored at the truth and at the estimate (``d_truth``, ``d_est``,
+        #: ``best_truth``, ``best_est``, ``term_gaps``) on frames where the estimate is on track (IoU at least
+        #: ``on_track_iou``) too. Only a recorder shows them there (the "why" view's series); the labels,
+        #: events, diagnoses and results read them off track only, so a run without a recorder leaves them
+        #: ``nan`` on track and saves the two scorings (~0.7 ms of CPU a frame at 600 particles).
+        self.on_track_scores = bool(on_track_scores)
         self.states: list[_State] = []
         self._view = DiagnosisView(self)
         self._init_box: np.ndarray | None = None
@@ -944,6 +950,9 @@ class Diagnoser(Observer):
             s.past.append((pg, gt))
         model = s.model
         if model is not None and rec.estimate_template is not None and rec.pose is not None:
+            if not self.on_track_scores and kw["iou"] >= cfg.on_track_iou:
+                kw["label"] = "ok"  # what _label says of it, without the scores no one reads on track
+                return FrameEvidence(**kw)
             mg = rec.inputs.gray if rec.inputs is not None else model.prepare(frame.image)
             truth_pose = box_to_pose(gt, model.base_wh)
             est_pose = np.asarray(rec.pose, dtype=np.float64)

@@ -215,7 +215,7 @@ def compute_job(job: Job, threads: int | None = None, executor: str = "local:1",
     seq.check_frames(len(seq) if job.max_frames is None else min(len(seq), job.max_frames))
     tracker = job.make_tracker()
     failures = _FailureCounter()
-    diagnoser = Diagnoser()
+    diagnoser = Diagnoser(on_track_scores=False)  # nothing here shows the cloud's scores on on-track frames
     stages: list = [diagnoser]
     replays = None
     if job.counterfactual:
