@@ -75,14 +75,17 @@ def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     y1 = np.maximum(a[:, 1], b[:, 1])
     x2 = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2])
     y2 = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    union = np.clip(a[:, 2], 0, None) * np.clip(a[:, 3], 0, None) + np.clip(b[:, 2], 0, None) * np.clip(
-        b[:, 3], 0, None
+    # np.maximum / np.minimum, not np.clip: the same values (NaN stays NaN), at half the cost of a call
+    # (the diagnosis calls this three times a frame).
+    inter = np.maximum(x2 - x1, 0.0) * np.maximum(y2 - y1, 0.0)
+    union = np.maximum(a[:, 2], 0.0) * np.maximum(a[:, 3], 0.0) + np.maximum(b[:, 2], 0.0) * np.maximum(
+        b[:, 3], 0.0
     ) - inter
     with np.errstate(invalid="ignore", divide="ignore"):
         out = np.where(union > 0, inter / union, 0.0)
-    # Rounding can push inter/union of identical boxes a hair above 1.
-    return np.clip(np.nan_to_num(out, nan=0.0), 0.0, 1.0)
+    # NaN to 0 (fmax takes the number), and into [0, 1]: rounding can push inter/union of identical
+    # boxes a hair above 1.
+    return np.minimum(np.fmax(out, 0.0), 1.0)
 
 
 def _pair(a, b, na: str = "a", nb: str = "b") -> tuple[np.ndarray, np.ndarray]:

@@ -302,3 +302,33 @@ def test_metrics_never_mutate_inputs(rng):
     valid_rows(gt)
     np.testing.assert_array_equal(boxes, b0)
     np.testing.assert_array_equal(gt, g0)
+
+
+def _iou_clip_reference(a, b):
+    """IoU as np.clip and np.nan_to_num write it (the function's earlier body): the oracle of its rewrite."""
+    a, b = np.atleast_2d(np.asarray(a, float)), np.atleast_2d(np.asarray(b, float))
+    x1, y1 = np.maximum(a[:, 0], b[:, 0]), np.maximum(a[:, 1], b[:, 1])
+    x2 = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2])
+    y2 = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3])
+    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
+    union = np.clip(a[:, 2], 0, None) * np.clip(a[:, 3], 0, None) + np.clip(b[:, 2], 0, None) * np.clip(
+        b[:, 3], 0, None) - inter
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(union > 0, inter / union, 0.0)
+    return np.clip(np.nan_to_num(out, nan=0.0), 0.0, 1.0)
+
+
+def test_iou_equals_the_clip_formula_bit_for_bit_on_odd_boxes():
+    rng = np.random.default_rng(7)
+    odd = np.array([np.nan, np.inf, -np.inf, 0.0, -0.0, -1.0, 1e-300, 1e300, 1e-320])
+    for _ in range(300):
+        n = int(rng.integers(1, 40))
+        a, b = rng.normal(50, 30, (n, 4)), rng.normal(50, 30, (n, 4))
+        b[:, 2:] = np.abs(b[:, 2:])
+        for m, x in ((rng.random((n, 4)) < 0.15, a), (rng.random((n, 4)) < 0.05, b)):
+            x[m] = rng.choice(odd, int(m.sum()))
+        if rng.random() < 0.2:
+            b = a.copy()
+        with np.errstate(all="ignore"):
+            got, want = iou(a, b), _iou_clip_reference(a, b)
+        assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
