@@ -126,7 +126,8 @@ def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds
     tracker = TimedTracker(inner)
     observers = list(extra)
     if rrd is None and not bare:  # as `covviz track --no-save`: the detector and the diagnosis on their thread
-        observers.append(BackgroundObserver(Pipeline([drift_watch(None), Diagnoser()])))
+        # (the diagnosis without the template cloud's scores on on-track frames, which only a recorder shows)
+        observers.append(BackgroundObserver(Pipeline([drift_watch(None), Diagnoser(on_track_scores=False)])))
     logger = None
     if rrd is not None:
         stream = new_recording()
@@ -134,7 +135,8 @@ def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds
         rerun_logger = RerunLogger(stream, LoggerConfig(mds_every=mds_every, seed=seed))
         # As `covviz track` does: the detector and the logger of its probability, the diagnosis, then
         # the recorder that shows what they found, on one thread of their own (BackgroundObserver).
-        # Only the recorders are timed (the detector and the diagnosis run untraced too).
+        # Only the recorders are timed (the detector and the diagnosis run untraced too; the diagnosis's
+        # scores of the cloud on on-track frames, for the recorder's why-view, are in the wall time only).
         logger = TimedObserver(rerun_logger)
         drift = TimedObserver(DriftRecorder(stream))
         pipe = Pipeline([drift_watch(None), drift, Diagnoser(), logger])
