@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -79,7 +80,15 @@ from covviz.model.dynamics import (
     template_walk,
 )
 from covviz.model.features import N_FEATURES, pose_corners, pose_to_box
-from covviz.model.flow import gray8, median_flow, trusted
+from covviz.model.flow import (
+    CAMERA_MIN_RESPONSE,
+    CAMERA_MIN_SHIFT,
+    camera_frame,
+    camera_shift,
+    gray8,
+    median_flow,
+    trusted,
+)
 from covviz.model.image import check_init_box, to_gray
 from covviz.model.observation import (
     OBSERVATION_SPECS,
@@ -196,6 +205,19 @@ class ManifoldConfig:
         only when :func:`covviz.model.flow.trusted`), before the kinematic
         step; the others keep their own. 0: off (the default, and always in
         ``manifold-paper``; docs/tuning.md has why it is not on yet).
+    camera_share : float
+        A proposal for a moving camera: on a frame where the whole scene
+        shifts (phase correlation of the downscaled frames,
+        :func:`covviz.model.flow.camera_shift`, trusted at a peak response of
+        at least :data:`~covviz.model.flow.CAMERA_MIN_RESPONSE`, and a shift of
+        at least :data:`~covviz.model.flow.CAMERA_MIN_SHIFT` of the last box's
+        size), this share of the particles, drawn at random, is moved by that
+        shift before the kinematic step, their velocities kept: a camera that
+        jumps takes the target with it. Other frames draw nothing, so a still
+        camera's run is the one without it, bit for bit. 0: off (the default,
+        and always in ``manifold-paper``). 0.5 keeps Couple's camera jumps
+        (its losses over 15 seeds 24 → 0) and changes no other dev sequence's
+        mean measurably; docs/tuning.md has why it is not the default.
     ncc_rate : float
         A position-sensitive last step for the reported box
         (:mod:`covviz.model.refine`): its centre moves to where the target's
@@ -233,6 +255,7 @@ class ManifoldConfig:
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     adaptive: AdaptiveDiffusion = field(default_factory=AdaptiveDiffusion)
     flow_share: float = 0.0
+    camera_share: float = 0.0
     ncc_rate: float = 0.02
 
     def __post_init__(self):
@@ -308,15 +331,16 @@ MANIFOLD_SPECS: dict[str, Spec] = {
     "observation": Spec("config", cls=ObservationConfig),
     "adaptive": Spec("config", cls=AdaptiveDiffusion),
     "flow_share": Spec("float", 0, 1),
+    "camera_share": Spec("float", 0, 1),
     "ncc_rate": Spec("float", 0, 1),
 }
 
 #: Top-level fields added to (or removed from) the config after results were first saved, each with the
 #: value at which the tracker does exactly what it did without the field (every one was added off:
 #: ``ncc_rate`` 0 is bit for bit the tracker before the position step, ``flow_guard`` 0 the tracker after
-#: the guard's removal). A saved config that lacks such a field, or holds it at this value, is the same
+#: the guard's removal, ``camera_share`` 0 the tracker before the moving-camera proposal). A saved config that lacks such a field, or holds it at this value, is the same
 #: config as one without it: ``covviz bench`` keeps those results instead of refusing the folder.
-NEUTRAL_FIELDS: dict[str, float] = {"ncc_rate": 0.0, "flow_guard": 0.0}
+NEUTRAL_FIELDS: dict[str, float] = {"ncc_rate": 0.0, "flow_guard": 0.0, "camera_share": 0.0}
 
 
 # --------------------------------------------------------------------------- #
@@ -453,6 +477,7 @@ class ManifoldTracker:
         self.anchor: AnchorState | None = None
         self.adapt: AdaptState | None = None
         self.flow: FlowState | None = None
+        self.camera: CameraState | None = None
         self.ncc: NccState | None = None
         self.last_record: FrameRecord | None = None
         #: An experiment's hand in update() (covviz.diagnosis.counterfactual); None in normal runs.
@@ -526,6 +551,7 @@ class ManifoldTracker:
             rng_state=copy.deepcopy(self.rng.bit_generator.state),
             index=self._index,
             ncc=self.ncc,
+            camera=self.camera,
         )
 
     def restore(self, state: ManifoldState) -> None:
@@ -544,6 +570,7 @@ class ManifoldTracker:
         self.anchor = state.anchor
         self.adapt = state.adapt
         self.flow = state.flow
+        self.camera = state.camera
         self.ncc = state.ncc
         self.rng.bit_generator.state = copy.deepcopy(state.rng_state)
         self._index = state.index
@@ -575,6 +602,7 @@ class ManifoldTracker:
         self.anchor = AnchorState(_ro(L0), 1.0) if cfg.anchor_pull > 0 else None
         self.adapt = AdaptState.start(pose[0], L0) if cfg.adaptive.enabled else None
         self.flow = FlowState(_ro(gray8(frame), np.uint8), _ro(b)) if cfg.flow_share > 0 else None
+        self.camera = CameraState(*camera_frame(frame), _ro(b)) if cfg.camera_share > 0 else None
         self.ncc = None
         if cfg.ncc_rate > 0:
             size = (max(4, round(w)), max(4, round(h)))
@@ -610,6 +638,26 @@ class ManifoldTracker:
         a = self.config.kinematics.velocity_decay
         st[idx, VX] = f[0] / a
         st[idx, VY] = f[1] / a
+        return ParticleSet(st, ps.templates, ps.log_weights)
+
+    def _camera_shift(self, ps: ParticleSet, small: np.ndarray, factor: float) -> ParticleSet:
+        """``camera_share`` of the particles moved by the whole scene's shift since the last frame, where it
+        is trusted (:data:`CAMERA_MIN_RESPONSE`) and at least :data:`CAMERA_MIN_SHIFT` target sizes (the last
+        box's); otherwise nothing changes and nothing is drawn. Their velocities are kept: a jump of the
+        camera moves the target once."""
+        cam = self.camera
+        if small.shape != cam.frame.shape or factor != cam.factor:
+            return ps
+        dx, dy, response = camera_shift(cam.frame, small, factor)
+        size = math.sqrt(cam.box[2] * cam.box[3])
+        if not (response >= CAMERA_MIN_RESPONSE and math.hypot(dx, dy) >= CAMERA_MIN_SHIFT * size):
+            return ps  # (a flat frame's NaN fails both tests too)
+        st = np.array(ps.states)
+        n = len(st)
+        k = round(self.config.camera_share * n)
+        idx = np.arange(n) if k == n else self.rng.permutation(n)[:k]
+        st[idx, X] += dx
+        st[idx, Y] += dy
         return ParticleSet(st, ps.templates, ps.log_weights)
 
     def _intervene(self, hook: Intervention, frame, gray, states, templates):
@@ -727,6 +775,14 @@ class ManifoldTracker:
             ps = self._flow_velocities(ps, cur8)
             t_prop = time.perf_counter()
             tm["flow"] = t_prop - t_start
+        small = None
+        if self.camera is not None:
+            # 0b. the camera's motion: a share of the particles moves with the whole scene's jump
+            t_cam = time.perf_counter()
+            small, factor = camera_frame(frame)
+            ps = self._camera_shift(ps, small, factor)
+            t_prop = time.perf_counter()
+            tm["camera"] = t_prop - t_cam
 
         # 1. propagate kinematics and templates (their noise following the last frame's evidence)
         adapt = self.adapt
@@ -817,6 +873,8 @@ class ManifoldTracker:
             self.colour = fgbg.update_colour_model(colour_state, frame, box, cfg.colour_rate)
         if cur8 is not None:
             self.flow = FlowState(_ro(cur8, np.uint8), _ro(box))
+        if small is not None:
+            self.camera = CameraState(_ro(small, np.float32), factor, _ro(box))
         out_pose = est_pose
         if self.ncc is not None:  # the reported box only: the filter goes on from its own estimate
             same = model.step <= 1 and model.smooth_sigma <= 0  # then the model's grey is the frame's own
@@ -909,6 +967,17 @@ class FlowState:
 
 
 @dataclass(frozen=True, slots=True, eq=False)
+class CameraState:
+    """The camera-motion proposal's memory (``ManifoldConfig.camera_share``): the last frame as
+    :func:`covviz.model.flow.camera_frame` reads it, its downscale factor, and the box estimated on it
+    (read-only arrays)."""
+
+    frame: np.ndarray
+    factor: float
+    box: np.ndarray
+
+
+@dataclass(frozen=True, slots=True, eq=False)
 class ManifoldState:
     """A :class:`ManifoldTracker`'s state between two frames (:meth:`ManifoldTracker.snapshot`).
 
@@ -929,6 +998,8 @@ class ManifoldState:
         The adaptive diffusion's evidence and last confident pose (None when off).
     flow : FlowState or None
         The motion prior's last frame and box (None when off).
+    camera : CameraState or None
+        The moving-camera proposal's last (downscaled) frame and box (None when off).
     rng_state : dict
         The bit generator's state (``Generator.bit_generator.state``).
     index : int
@@ -947,6 +1018,7 @@ class ManifoldState:
     rng_state: dict
     index: int
     ncc: NccState | None = None
+    camera: CameraState | None = None
 
 
 def _ro(a: np.ndarray, dtype=np.float64) -> np.ndarray:
@@ -1021,6 +1093,7 @@ PAPER_LIKELIHOOD = {
     "rotation_steps": 0,
     "adaptive": AdaptiveDiffusion(enabled=False),
     "flow_share": 0.0,
+    "camera_share": 0.0,
     "ncc_rate": 0.0,
 }
 #: The derivative normalisation and the colour term off, the quadrant term (and the adaptive diffusion and the
