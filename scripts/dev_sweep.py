@@ -14,6 +14,8 @@ Usage::
     python scripts/dev_sweep.py run adaptive '{}' --set A --seeds 0,1,2
     python scripts/dev_sweep.py table static adaptive          # per sequence, both seed sets
     python scripts/dev_sweep.py pair adaptive static --seeds 0,1,2 3,4,5   # paired difference per seed set
+    python scripts/dev_sweep.py run chaos '{}' --set AB --seeds 0,1,2 --perturb   # the placebo: another stream only
+    python scripts/dev_sweep.py bysequence default chaos --seeds 0,1,2     # how far the stream alone moves each
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ def ab_cells(per_seq: dict) -> list[str]:
 
 
 def _job(args):
-    root, out_dir, cfgd, seq, seed = args
+    root, out_dir, cfgd, seq, seed, perturb = args
     out = Path(out_dir) / f"{seq}_s{seed}.json"
     if out.exists():
         return json.loads(out.read_text())
@@ -63,6 +65,8 @@ def _job(args):
     t0 = time.process_time()
     with ManifoldTracker(cfg, rng=tracker_rng(seed)) as tr:
         tr.init(s.frame(0).image, s.init_box)
+        if perturb:
+            tr.rng.random()  # the placebo: one draw more, so the run's random stream is another, nothing else
         for i in range(1, len(s)):
             boxes.append(tr.update(s.frame(i).image))
     boxes = np.array(boxes)
@@ -83,9 +87,12 @@ def run(args) -> int:
     ManifoldConfig.from_dict(cfgd)  # refuse a bad config before starting any process
     out = Path(args.out) / args.name
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(cfgd))
+    meta = out / "config.json"
+    if meta.exists() and json.loads(meta.read_text()) != {**cfgd, **({"perturb": True} if args.perturb else {})}:
+        raise SystemExit(f"{out} holds runs of another config (or --perturb): choose another name")
+    meta.write_text(json.dumps({**cfgd, **({"perturb": True} if args.perturb else {})}))
     seeds = [int(x) for x in args.seeds.split(",")]
-    jobs = [(args.root, str(out), cfgd, q, sd) for q in SETS[args.set] for sd in seeds]
+    jobs = [(args.root, str(out), cfgd, q, sd, args.perturb) for q in SETS[args.set] for sd in seeds]
     with ProcessPoolExecutor(args.jobs) as ex:
         res = list(ex.map(_job, jobs))
     print(f"{args.name}: mean success AUC {np.mean([r['auc'] for r in res]):.4f}, "
@@ -142,6 +149,27 @@ def pair(args) -> int:
     return 0
 
 
+def bysequence(args) -> int:
+    """Per sequence: two variants' mean success AUC over the seeds, their paired difference (mean ± standard
+    error over the seeds) and losses; with a ``--perturb`` run as the second, how far the random stream alone
+    moves each sequence — the yardstick for a variant's per-sequence difference."""
+    def load(name, q, sd):
+        return json.loads((Path(args.out) / name / f"{q}_s{sd}.json").read_text())
+
+    seeds = [int(x) for x in args.seeds.split(",")]
+    a_name, b_name = args.names
+    print(f"| sequence | {a_name} | {b_name} | difference (± s.e., {len(seeds)} seeds) | losses |")
+    print("|---|---:|---:|---:|---:|")
+    for q in A + B:
+        a = np.array([load(a_name, q, sd)["auc"] for sd in seeds])
+        b = np.array([load(b_name, q, sd)["auc"] for sd in seeds])
+        d = b - a
+        se = d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else float("nan")
+        la, lb = (sum(load(n, q, sd)["losses"] for sd in seeds) for n in (a_name, b_name))
+        print(f"| {q} | {a.mean():.3f} | {b.mean():.3f} | {d.mean():+.3f} ± {se:.3f} | {la} → {lb} |")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -152,15 +180,22 @@ def main(argv=None) -> int:
     r.add_argument("--seeds", default="0,1,2")
     r.add_argument("--jobs", type=int, default=2)
     r.add_argument("--root", default=os.environ.get("COVVIZ_SEQUENCES", "../shared/sequences"))
+    r.add_argument("--perturb", action="store_true",
+                   help="a placebo: the tracker draws one random number more after init, so each run follows "
+                        "another random stream and nothing else changes; 'pair BASE NAME' then shows how far "
+                        "the stream alone moves each sequence (and 'bysequence BASE NAME', per sequence)")
     t = sub.add_parser("table", help="a markdown table of variants already run")
     t.add_argument("names", nargs="+")
     pr = sub.add_parser("pair", help="the paired difference of two variants already run (the second minus the first)")
     pr.add_argument("names", nargs=2)
     pr.add_argument("--seeds", nargs="+", required=True, help="seed sets, e.g. 0,1,2 3,4,5 (pooled too)")
-    for p in (r, t, pr):
+    bs = sub.add_parser("bysequence", help="per sequence: the paired difference of two variants already run")
+    bs.add_argument("names", nargs=2)
+    bs.add_argument("--seeds", required=True, help="e.g. 0,1,2,3,4,5")
+    for p in (r, t, pr, bs):
         p.add_argument("--out", default="runs/sweep", help="results folder (default runs/sweep, outside git)")
     args = ap.parse_args(argv)
-    return {"run": run, "table": table, "pair": pair}[args.cmd](args)
+    return {"run": run, "table": table, "pair": pair, "bysequence": bysequence}[args.cmd](args)
 
 
 if __name__ == "__main__":
