@@ -21,6 +21,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import json
 import os
@@ -87,10 +88,10 @@ def run(args) -> int:
     ManifoldConfig.from_dict(cfgd)  # refuse a bad config before starting any process
     out = Path(args.out) / args.name
     out.mkdir(parents=True, exist_ok=True)
-    meta = out / "config.json"
-    if meta.exists() and json.loads(meta.read_text()) != {**cfgd, **({"perturb": True} if args.perturb else {})}:
+    meta, wanted = out / "config.json", {**cfgd, **({"perturb": True} if args.perturb else {})}
+    if meta.exists() and json.loads(meta.read_text()) != wanted:
         raise SystemExit(f"{out} holds runs of another config (or --perturb): choose another name")
-    meta.write_text(json.dumps({**cfgd, **({"perturb": True} if args.perturb else {})}))
+    meta.write_text(json.dumps(wanted))
     seeds = [int(x) for x in args.seeds.split(",")]
     jobs = [(args.root, str(out), cfgd, q, sd, args.perturb) for q in SETS[args.set] for sd in seeds]
     with ProcessPoolExecutor(args.jobs) as ex:
@@ -124,12 +125,15 @@ def table(args) -> int:
     return 0
 
 
+def _load(out: str, name: str, q: str, sd: int) -> dict:
+    """One run's result (``OUT/NAME/SEQ_sSEED.json``)."""
+    return json.loads((Path(out) / name / f"{q}_s{sd}.json").read_text())
+
+
 def pair(args) -> int:
     """Mean success AUC of two variants on the same sequences and seeds, their paired difference with a 95%
     interval from resampling the 14 sequences, and the losses, for each seed set given and all of them pooled."""
-    def load(name, q, sd):
-        return json.loads((Path(args.out) / name / f"{q}_s{sd}.json").read_text())
-
+    load = functools.partial(_load, args.out)
     groups = [[int(x) for x in g.split(",")] for g in args.seeds]
     if len(groups) > 1:
         groups.append(sorted({sd for g in groups for sd in g}))
@@ -153,9 +157,7 @@ def bysequence(args) -> int:
     """Per sequence: two variants' mean success AUC over the seeds, their paired difference (mean ± standard
     error over the seeds) and losses; with a ``--perturb`` run as the second, how far the random stream alone
     moves each sequence — the yardstick for a variant's per-sequence difference."""
-    def load(name, q, sd):
-        return json.loads((Path(args.out) / name / f"{q}_s{sd}.json").read_text())
-
+    load = functools.partial(_load, args.out)
     seeds = [int(x) for x in args.seeds.split(",")]
     a_name, b_name = args.names
     print(f"| sequence | {a_name} | {b_name} | difference (± s.e., {len(seeds)} seeds) | losses |")

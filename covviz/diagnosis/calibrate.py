@@ -506,7 +506,7 @@ def candidates(signals, designs=DESIGNS) -> tuple:
     ``signal`` design one ``"signal:NAME"`` per signal of :data:`TROUBLE` among ``signals``."""
     out = [d for d in designs if d != "signal"]
     if "signal" in designs:
-        out += [f"signal:{s}" for s in TROUBLE if s in signals]
+        out += [_signal_key(s) for s in TROUBLE if s in signals]
     return tuple(out)
 
 
@@ -719,6 +719,11 @@ def fit_design(runs: list[Run], family: str, signals=None, fit_info: dict | None
                      probs.get((design, target)) if RULE_ON_HELD_OUT else None)
 
 
+def _signal_key(name: str) -> str:
+    """The candidate key of the ``signal`` design on one signal (:func:`candidates`, ``--design``)."""
+    return f"signal:{name}"
+
+
 def _choice_key(key: str, target: str) -> str:
     """How a model file's ``fit.design_choice.held_out`` names a candidate (:func:`candidates`) and its target."""
     return f"{key} {target}"
@@ -728,7 +733,7 @@ def held_out_score(model: DriftModel) -> tuple[dict | None, int]:
     """The held-out precision and recall of the candidate ``model`` is (its file's design choice, written by
     :func:`fit_design`), or None where the file has none for it; and how many candidates that choice weighed."""
     choice = ((model.fit or {}).get("design_choice") or {}).get("held_out") or {}
-    key = f"signal:{model.signals[0]}" if model.design == "signal" else model.design
+    key = _signal_key(model.signals[0]) if model.design == "signal" else model.design
     return choice.get(_choice_key(key, (model.fit or {}).get("target", SIGNAL_TARGET))), len(choice)
 
 

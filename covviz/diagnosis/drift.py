@@ -951,7 +951,7 @@ class Diagnoser(Observer):
         model = s.model
         if model is not None and rec.estimate_template is not None and rec.pose is not None:
             if not self.on_track_scores and kw["iou"] >= cfg.on_track_iou:
-                kw["label"] = "ok"  # what _label says of it, without the scores no one reads on track
+                kw["label"] = self._label(kw)  # "ok" on track: the rule reads no score there
                 return FrameEvidence(**kw)
             mg = rec.inputs.gray if rec.inputs is not None else model.prepare(frame.image)
             truth_pose = box_to_pose(gt, model.base_wh)

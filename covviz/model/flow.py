@@ -19,6 +19,7 @@ proposal (``ManifoldConfig.camera_share``).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -138,16 +139,15 @@ def camera_frame(frame: np.ndarray) -> tuple[np.ndarray, float]:
     return np.ascontiguousarray(g, dtype=np.float32), f
 
 
-_WINDOWS: dict[tuple[int, int], np.ndarray] = {}
+@functools.lru_cache(maxsize=8)
+def _hanning(width: int, height: int) -> np.ndarray:
+    """Phase correlation's window for frames of this size (cached)."""
+    return cv2.createHanningWindow((width, height), cv2.CV_32F)
 
 
 def camera_shift(prev: np.ndarray, cur: np.ndarray, factor: float) -> tuple[float, float, float]:
     """The whole scene's shift from ``prev`` to ``cur`` (:func:`camera_frame` outputs of one size), in
     full-resolution pixels, and phase correlation's peak response (``cv2.phaseCorrelate``, Hanning window).
     Accurate to about a pixel of the downscaled frames (the window and the subpixel fit of the peak bias it)."""
-    shape = (cur.shape[1], cur.shape[0])
-    w = _WINDOWS.get(shape)
-    if w is None:
-        w = _WINDOWS.setdefault(shape, cv2.createHanningWindow(shape, cv2.CV_32F))
-    (dx, dy), response = cv2.phaseCorrelate(prev, cur, w)
+    (dx, dy), response = cv2.phaseCorrelate(prev, cur, _hanning(cur.shape[1], cur.shape[0]))
     return float(dx) / factor, float(dy) / factor, float(response)

@@ -779,7 +779,7 @@ class ManifoldTracker:
         if self.camera is not None:
             # 0b. the camera's motion: a share of the particles moves with the whole scene's jump
             t_cam = time.perf_counter()
-            small, factor = camera_frame(frame)
+            small, factor = camera_frame(frame if cur8 is None else cur8)  # the flow's grey, if it made one
             ps = self._camera_shift(ps, small, factor)
             t_prop = time.perf_counter()
             tm["camera"] = t_prop - t_cam
