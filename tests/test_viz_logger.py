@@ -590,17 +590,29 @@ def test_views_in_columns_or_one_log_each_record_the_same(tmp_path, run):
     live, _ = read_recording(path)
     cols = run["temporal"]
     p = P.TrackerPaths("manifold")
+    top_values = [c for c in cols[p.top] if not c.startswith("LineStrips2D:")]
+    assert {"weight", "particle", "distance"} <= {c.split(":")[-1] for c in top_values}, top_values
     for entity, column in ((p.particles, "LineStrips2D:strips"), (p.particle_dots, "Points2D:positions"),
                            (p.particle_dots, "Points2D:colors"), (p.centres, "Points2D:positions"),
                            (p.centres, "Points2D:radii"), (f"{p.heatmap}/image", "Image:buffer"),
-                           (f"{p.zoom}/patches", "Image:buffer")):
+                           (f"{p.zoom}/patches", "Image:buffer"), (P.IMAGE, "EncodedImage:blob"),
+                           (P.IMAGE, "EncodedImage:media_type"), (P.GROUND_TRUTH, "Boxes2D:centers"),
+                           (P.GROUND_TRUTH, "Boxes2D:half_sizes"), (p.box, "Boxes2D:centers"),
+                           (p.box, "Boxes2D:half_sizes"), (p.region, "LineStrips2D:strips"),
+                           (p.top, "LineStrips2D:strips"), *((p.top, c) for c in top_values)):
         a, b = last(cols, entity, column), last(live, entity, column)
         a = {f: v for f, v in a.items() if np.size(v)}  # a frame with none (all particles boxed): no points
         b = {f: v for f, v in b.items() if np.size(v)}
         assert set(a) == set(b) and len(b) >= N_FRAMES - 2, entity
         for f in b:
-            np.testing.assert_array_equal(np.asarray(a[f], dtype=float), np.asarray(b[f], dtype=float), err_msg=entity)
+            if column.endswith("media_type"):
+                assert a[f] == b[f] == ["image/jpeg"], (entity, f)
+                continue
+            np.testing.assert_array_equal(np.asarray(a[f], dtype=float), np.asarray(b[f], dtype=float),
+                                          err_msg=f"{entity} {column}")
     # the per-frame constants: per row in the live file, static in the batched one
     assert "Points2D:radii" in live[p.particle_dots]
     _, static = run["temporal"], run["static"]
     assert p.particle_dots in static and "Points2D:radii" in static[p.particle_dots]
+    assert "EncodedImage:draw_order" in live[P.IMAGE] and "EncodedImage:draw_order" in static[P.IMAGE]
+    assert "LineStrips2D:colors" in live[p.top] and "LineStrips2D:colors" in static[p.top]

@@ -80,6 +80,8 @@ log = logging.getLogger("covviz.viz")
 #: The frame is drawn first (lowest draw order); overlays must come after it, or the depth test
 #: hides the frame behind their transparent pixels.
 FRAME_DRAW_ORDER = -20.0
+#: Draw order of the top particles' regions.
+TOP_DRAW_ORDER = 30.0
 #: Radius of the centre of the heaviest particle, pixels (radius ∝ sqrt(w / w_max)).
 CENTRE_RADIUS = 3.0
 #: Line radius of the particles' regions, and radius of the dots of the light ones (image pixels).
@@ -407,6 +409,8 @@ class RerunLogger(Observer):
         )
 
         # Static styles of the time series and overlays.
+        if cfg.views_in_columns:  # what the frame's column rows leave out
+            rec.log(P.IMAGE, rr.EncodedImage.from_fields(draw_order=FRAME_DRAW_ORDER), static=True)
         rec.log(
             P.GROUND_TRUTH,
             rr.Boxes2D.from_fields(colors=[GT_COLOR], radii=[0.9], show_labels=False, draw_order=40.0),
@@ -458,6 +462,8 @@ class RerunLogger(Observer):
             if cfg.views_in_columns and s.info.particles:  # what the particles' column rows leave out
                 rec.log(p.particles, rr.LineStrips2D.from_fields(radii=[PARTICLE_RADIUS], draw_order=20.0),
                         static=True)
+                rec.log(p.top, rr.LineStrips2D.from_fields(colors=[TOP_COLOR], radii=[0.6], draw_order=TOP_DRAW_ORDER),
+                        static=True)
                 rec.log(p.particle_dots, rr.Points2D.from_fields(radii=[DOT_RADIUS], draw_order=19.0), static=True)
                 rec.log(p.centres, rr.Points2D.from_fields(draw_order=25.0), static=True)
             rec.log(
@@ -503,18 +509,15 @@ class RerunLogger(Observer):
             rec.log(P.LAYOUT, rr.AnyValues(image_size=[int(w), int(h)]), static=True)
             self._blueprint_args = None
         self._set_time(frame)
-        rec.log(
-            P.IMAGE,
-            rr.EncodedImage(
-                contents=jpeg_bytes(frame.image, cfg.jpeg_quality),
-                media_type="image/jpeg",
-                draw_order=FRAME_DRAW_ORDER,
-            ),
-        )
+        jpeg = jpeg_bytes(frame.image, cfg.jpeg_quality)
+        if cfg.views_in_columns:
+            self.series.add_encoded_image(P.IMAGE, jpeg, "image/jpeg")
+        else:
+            rec.log(P.IMAGE, rr.EncodedImage(contents=jpeg, media_type="image/jpeg", draw_order=FRAME_DRAW_ORDER))
         problems: list[str] = []
         gt = checked(frame.gt, (4,), "ground truth", problems)
         if gt is not None:
-            rec.log(P.GROUND_TRUTH, rr.Boxes2D(mins=[gt[:2]], sizes=[gt[2:]]))
+            self._put_boxes(P.GROUND_TRUTH, gt[None])
         else:
             rec.log(P.GROUND_TRUTH, rr.Clear(recursive=False))
         self._recent.append((frame, list(records)))
@@ -564,7 +567,7 @@ class RerunLogger(Observer):
         rec, p = self.stream, s.paths
         box = checked(record.box, (4,), "box", problems)
         if box is not None:
-            rec.log(p.box, rr.Boxes2D(mins=[box[:2]], sizes=[box[2:]]))
+            self._put_boxes(p.box, box[None])
             if len(self._states) > 1:
                 # Each tracker's name by its own corner of its box (top-left, bottom-left, top-right,
                 # bottom-right, ...): two trackers on the same target do not print on top of each other.
@@ -574,7 +577,11 @@ class RerunLogger(Observer):
                                              show_labels=True, draw_order=46.0))
         corners = checked(record.corners, (4, 2), "corners", problems)
         if corners is not None:
-            rec.log(p.region, rr.LineStrips2D(closed_strips(corners[None]).astype(np.float32)))
+            strips = closed_strips(corners[None]).astype(np.float32)
+            if self.config.views_in_columns:
+                self.series.add_strips(p.region, strips)
+            else:
+                rec.log(p.region, rr.LineStrips2D(strips))
         return box
 
     def _log_particles(self, s: _TrackerState, record: FrameRecord, problems: list) -> None:
@@ -629,13 +636,12 @@ class RerunLogger(Observer):
             contrib = term_contributions(record, len(w), problems)
             for k, c in contrib.items():
                 top_any[f"term_{k}"] = c[top]
-            rec.log(
-                p.top,
-                rr.LineStrips2D(
-                    closed_strips(pc[top]).astype(np.float32), colors=[TOP_COLOR], radii=0.6, draw_order=30.0
-                ),
-                rr.AnyValues(**top_any),
-            )
+            top_strips = closed_strips(pc[top]).astype(np.float32)
+            if cfg.views_in_columns:
+                self.series.add_strips(p.top, top_strips, values=top_any)  # its colour, radius, order: static
+            else:
+                rec.log(p.top, rr.LineStrips2D(top_strips, colors=[TOP_COLOR], radii=0.6, draw_order=TOP_DRAW_ORDER),
+                        rr.AnyValues(**top_any))
             radii = np.round(CENTRE_RADIUS * np.sqrt(wn[order]) * 4) / 4
             vis = radii >= MIN_CENTRE_RADIUS
             centres = np.round(pc[order[vis]].mean(axis=1) / q) * q
@@ -739,6 +745,14 @@ class RerunLogger(Observer):
             s.initial_patch = patches[0]
         truth = patches[1] if gt is not None else None
         self._put_image(f"{s.paths.zoom}/patches", why.zoom_image([patches[0], truth, s.initial_patch]), "L")
+
+    def _put_boxes(self, path: str, boxes: np.ndarray) -> None:
+        """A per-frame ``(n, 4)`` batch of ``x, y, w, h`` boxes: with the series' columns, or its own log call
+        (``views_in_columns``); its style is static."""
+        if self.config.views_in_columns:
+            self.series.add_boxes(path, boxes[:, :2], boxes[:, 2:])
+        else:
+            self.stream.log(path, rr.Boxes2D(mins=boxes[:, :2], sizes=boxes[:, 2:]))
 
     def _put_image(self, path: str, image: np.ndarray, color_model: str) -> None:
         """A per-frame image: with the series' columns, or its own log call (``views_in_columns``); its

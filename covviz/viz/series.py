@@ -61,6 +61,7 @@ class SeriesBuffer:
         self._rows: dict[str, tuple[list, list, list]] = {}
         self._images: dict[tuple, tuple[list, list, list]] = {}  # (path, shape, colour model) -> rows
         self._batches: dict[tuple, tuple[list, list, list]] = {}  # (path, kind) -> frames, seconds, {field: array}
+        self._encoded: dict[tuple, tuple[list, list, list]] = {}  # (path, media type) -> frames, seconds, bytes
         self._frame: int | None = None
         self._seconds: float | None = None
         self._ticks = 0  # frames since the last flush
@@ -90,14 +91,30 @@ class SeriesBuffer:
             fields["radii"] = np.asarray(radii, np.float32).reshape(-1)
         self._hold(self._batches, (path, "points"), fields, "add_points")
 
-    def add_strips(self, path: str, strips: np.ndarray, colors: np.ndarray) -> None:
+    def add_strips(self, path: str, strips: np.ndarray, colors: np.ndarray | None = None,
+                   values: dict | None = None) -> None:
         """One frame's ``LineStrips2D`` of ``(n, k, 2)`` strips of ``k`` points each (``n`` may be 0), with
-        ``(n, 4)`` uint8 colours, sent with the series."""
+        ``(n, 4)`` uint8 colours (None: the entity's static ones), sent with the series; ``values``: ``rr.AnyValues``
+        of the same rows (name -> ``(n,)`` array), sent beside them."""
         strips = np.asarray(strips, np.float32)
         if strips.ndim != 3 or strips.shape[2] != 2:
             raise ValueError(f"strips must be (n, k, 2), got shape {strips.shape}")
-        self._hold(self._batches, (path, "strips"),
-                   {"strips": strips, "colors": np.asarray(colors, np.uint8).reshape(-1, 4)}, "add_strips")
+        fields = {"strips": strips}
+        if colors is not None:
+            fields["colors"] = np.asarray(colors, np.uint8).reshape(-1, 4)
+        self._hold(self._batches, (path, "strips"), {**fields, **_any_fields(values, len(strips))}, "add_strips")
+
+    def add_boxes(self, path: str, mins: np.ndarray, sizes: np.ndarray) -> None:
+        """One frame's ``Boxes2D`` of ``(n, 2)`` corners and sizes, sent with the series. Stored as
+        ``rr.Boxes2D(mins=..., sizes=...)`` stores them: float32 centres and half sizes, bit for bit."""
+        half = np.asarray(sizes, np.float32).reshape(-1, 2) / 2.0
+        centers = np.asarray(mins, np.float32).reshape(-1, 2) + half
+        self._hold(self._batches, (path, "boxes"), {"centers": centers, "half_sizes": half}, "add_boxes")
+
+    def add_encoded_image(self, path: str, contents: bytes, media_type: str) -> None:
+        """One frame's ``rr.EncodedImage`` (e.g. the frame's JPEG), sent with the series. Its draw order, if any,
+        is the caller's to log once, static."""
+        self._hold(self._encoded, (path, media_type), bytes(contents), "add_encoded_image")
 
     def _hold(self, store: dict, key, item, caller: str) -> None:
         """Keep ``item`` (a value, an image, a frame's batch) under ``key`` at the time of the last :meth:`at`."""
@@ -123,6 +140,7 @@ class SeriesBuffer:
         rows, self._rows = self._rows, {}
         images, self._images = self._images, {}
         batches, self._batches = self._batches, {}
+        encoded, self._encoded = self._encoded, {}
         self._ticks, self._since = 0, None
         for path, (frames, seconds, values) in rows.items():
             self.stream.send_columns(path, indexes=_indexes(frames, seconds),
@@ -133,18 +151,44 @@ class SeriesBuffer:
                 path, indexes=_indexes(frames, seconds),
                 columns=rr.Image.columns(buffer=np.stack(imgs).reshape(len(imgs), -1), format=[fmt] * len(imgs)),
             )
+        for (path, media_type), (frames, seconds, blobs) in encoded.items():
+            self.stream.send_columns(
+                path, indexes=_indexes(frames, seconds),
+                columns=rr.EncodedImage.columns(blob=blobs, media_type=[media_type] * len(blobs)),
+            )
         for (path, kind), (frames, seconds, rows) in batches.items():
             for group in _same_shape(rows, kind):
                 fr = [frames[i] for i in group]
                 sec = [seconds[i] for i in group]
                 cat = {k: np.concatenate([rows[i][k] for i in group]) for k in rows[group[0]]}
-                lengths = [len(rows[i]["colors"]) for i in group]
-                cols = (rr.Points2D.columns(**cat) if kind == "points" else rr.LineStrips2D.columns(**cat))
-                self.stream.send_columns(path, indexes=_indexes(fr, sec), columns=cols.partition(lengths))
+                lengths = [len(rows[i][_COUNT[kind]]) for i in group]
+                anys = {k[len(_ANY):]: cat.pop(k) for k in list(cat) if k.startswith(_ANY)}
+                cols = list(_ARCHETYPE[kind].columns(**cat).partition(lengths))
+                if anys:
+                    cols += list(rr.AnyValues.columns(**anys).partition(lengths))
+                self.stream.send_columns(path, indexes=_indexes(fr, sec), columns=cols)
 
     def __len__(self) -> int:
         """Values (and images) held, not yet sent."""
-        return sum(len(v[2]) for d in (self._rows, self._images, self._batches) for v in d.values())
+        return sum(len(v[2]) for d in (self._rows, self._images, self._batches, self._encoded) for v in d.values())
+
+
+#: The field whose rows a batch's length counts, and the archetype of its columns, by kind.
+_COUNT = {"points": "positions", "strips": "strips", "boxes": "centers"}
+_ARCHETYPE = {"points": rr.Points2D, "strips": rr.LineStrips2D, "boxes": rr.Boxes2D}
+#: Prefix of the fields of a batch that go out as ``rr.AnyValues`` beside its archetype.
+_ANY = "any:"
+
+
+def _any_fields(values: dict | None, n: int) -> dict:
+    """``values`` (name -> ``(n,)``) as batch fields (:data:`_ANY`-prefixed), checked to have ``n`` rows each."""
+    out = {}
+    for k, v in (values or {}).items():
+        a = np.asarray(v).reshape(-1)
+        if len(a) != n:
+            raise ValueError(f"value {k!r} has {len(a)} rows, the batch {n}")
+        out[_ANY + k] = a
+    return out
 
 
 def _same_shape(rows: list[dict], kind: str) -> list[list[int]]:
