@@ -336,6 +336,17 @@ def test_frame_inputs_say_what_update_weighed_by(synth, extra):
         np.testing.assert_allclose(parts["descriptor"], rec.distances[i] ** 2, rtol=1e-9)
         for k, t in rec.likelihood.terms.items():
             np.testing.assert_allclose(parts[k], rec.likelihood.term_weights[k] * t[i], rtol=1e-9, atol=1e-12)
+    # Several poses in one call (the diagnosis asks the truth and the estimate so): each row bit for bit
+    # what its pose alone gives, parts too.
+    L = rec.templates[:7]
+    both, parts2 = tr.model.template_scores(gray, rec.particle_poses[[3, 11]], L, **inputs, parts=True)
+    assert both.shape == (2, 7)
+    for r, i in enumerate((3, 11)):
+        alone, parts1 = tr.model.template_scores(gray, rec.particle_poses[i], L, **inputs, parts=True)
+        np.testing.assert_array_equal(both[r], alone)
+        assert set(parts2) == set(parts1)
+        for k in parts1:
+            np.testing.assert_array_equal(parts2[k][r], parts1[k])
     tr.close()
 
 

@@ -962,8 +962,10 @@ class Diagnoser(Observer):
                 cloud.append(np.asarray(rec.templates, dtype=np.float64)[sub])
             L = np.concatenate(cloud)
             inputs = rec.inputs.likelihood_kwargs() if rec.inputs is not None else {}  # what update() weighed by
-            at_truth, parts_truth = model.template_scores(mg, truth_pose, L, **inputs, parts=True)
-            at_est, parts_est = model.template_scores(mg, est_pose, L, **inputs, parts=True)
+            # The truth (row 0) and the estimate (row 1), observed in one call.
+            scores, parts = model.template_scores(mg, np.stack([truth_pose, est_pose]), L, **inputs, parts=True)
+            at_truth, at_est = scores
+            parts_truth, parts_est = ({k: v[r] for k, v in parts.items()} for r in (0, 1))
             kw["d_truth"], kw["d_est"] = float(at_truth[0]), float(at_est[0])
             kw["best_truth"] = float(at_truth.min())
             kw["best_est"] = float(at_est.min())

@@ -745,28 +745,41 @@ class ObservationModel:
 
         With ``parts``, also the parts of ``d_eff²`` by name, ``(m,)`` each:
         ``descriptor`` (``d²``), then each term, weighted (they add up to ``d_eff²``).
+
+        ``pose`` may also be ``(k, 4)``, several poses observed in one call: then ``(k, m)`` (and parts
+        ``(k, m)`` each), row ``j`` bit for bit what ``pose[j]`` alone gives.
         """
-        pose = np.asarray(pose, dtype=np.float64).reshape(1, 4)
+        poses = np.asarray(pose, dtype=np.float64)
+        single = poses.ndim == 1
+        poses = poses.reshape(-1, 4)
         L = np.asarray(templates, dtype=np.float64).reshape(-1, N_FEATURES, N_FEATURES)
-        ob = self.observe(gray, pose)
-        C = ob.descriptors[0]
-        d = np.concatenate(
-            [self._template_distances(L[i : i + OBSERVE_CHUNK], C) for i in range(0, len(L), OBSERVE_CHUNK)]
-        ) if len(L) else np.zeros(0)
-        q = t = c = None
-        if self.quadrants:
-            q1 = self.quadrant_distances(ob.quadrants, quadrant_state)
-            q = np.broadcast_to(q1, (len(L), 4))
-            if self.context:
-                c = np.broadcast_to(self.context_terms(ob.quadrants, q1), (len(L),))
-        if colour is not None and self.colour:
-            t = np.broadcast_to(self.colour_terms(colour, pose), (len(L),))
-        terms = self.terms(q, t, quadrant_state, c)
-        d_eff = self.likelihood_distance(d, terms=terms)
+        ob = self.observe(gray, poses)
+        weights = self.term_weights
+        scores, split = [], []
+        for j in range(len(poses)):
+            C = ob.descriptors[j]
+            d = np.concatenate(
+                [self._template_distances(L[i : i + OBSERVE_CHUNK], C) for i in range(0, len(L), OBSERVE_CHUNK)]
+            ) if len(L) else np.zeros(0)
+            q = t = c = None
+            if self.quadrants:
+                Qj = ob.quadrants[j : j + 1]
+                q1 = self.quadrant_distances(Qj, quadrant_state)
+                q = np.broadcast_to(q1, (len(L), 4))
+                if self.context:
+                    c = np.broadcast_to(self.context_terms(Qj, q1), (len(L),))
+            if colour is not None and self.colour:
+                t = np.broadcast_to(self.colour_terms(colour, poses[j : j + 1]), (len(L),))
+            terms = self.terms(q, t, quadrant_state, c)
+            scores.append(self.likelihood_distance(d, terms=terms))
+            if parts:
+                split.append({"descriptor": d * d, **{k: weights[k] * np.asarray(v) for k, v in terms.items()}})
+        if single:
+            return (scores[0], split[0]) if parts else scores[0]
+        d_eff = np.stack(scores)
         if not parts:
             return d_eff
-        weights = self.term_weights
-        return d_eff, {"descriptor": d * d, **{k: weights[k] * np.asarray(v) for k, v in terms.items()}}
+        return d_eff, {k: np.stack([sp[k] for sp in split]) for k in split[0]}
 
     def descriptors(self, gray: np.ndarray, poses, executor=None, threads: int = 1) -> np.ndarray:
         """Descriptors ``(n, 9, 9)`` at ``poses`` of a prepared frame."""
