@@ -41,7 +41,7 @@ from collections.abc import Hashable, Sequence
 import numpy as np
 from scipy.linalg import eigh, orthogonal_procrustes
 
-from covviz.model.spd import pairwise_distance
+from covviz.model.spd import invsqrtm, pairwise_distance
 
 __all__ = [
     "AlignedMDS",
@@ -82,6 +82,17 @@ def distance_matrix(C: np.ndarray, metric: str = "riemann", batch_size: int = 40
     batch_size : int
         Pairs per vectorised call (bounds memory).
     """
+    C = np.asarray(C, dtype=np.float64)
+    if metric == "riemann" and C.ndim == 3 and C.shape[1:] == (9, 9) and len(C) > 1:
+        from covviz.model import kernels
+
+        if kernels.JIT_ENABLED:
+            # The compiled Jacobi on the whitened pairs (covviz.model.kernels.pair_distances_fast): the
+            # same distances to ~1e-13, 3-4x faster than LAPACK's eigvalsh on ~1 300 9x9 pairs.
+            I, J = np.triu_indices(len(C), k=1)
+            D = np.zeros((len(C), len(C)))
+            D[I, J] = kernels.pair_distances_fast(invsqrtm(C), C, I, J)
+            return D + D.T
     return pairwise_distance(C, metric=metric, batch_size=batch_size)
 
 

@@ -170,3 +170,22 @@ def test_smacof_is_scikit_learns_smacof(rng, power):
             theirs, _ = smacof(D, metric=True, n_components=2, init=X0.copy(), n_init=1, max_iter=max_iter,
                                eps=eps, normalized_stress=False)
             np.testing.assert_allclose(ours, theirs - theirs.mean(axis=0), rtol=0, atol=1e-9 * np.abs(theirs).max())
+
+
+def test_distance_matrix_of_descriptors_is_pyriemanns(rng):
+    """9x9 matrices go through the compiled Jacobi (covviz.model.kernels.pair_distances_fast): every entry
+    against pyriemann's affine-invariant distance (a test-only oracle) and the numpy reference."""
+    pr_distance = pytest.importorskip("pyriemann.geometry.distance").distance_riemann
+    from covviz.model.spd import pairwise_distance
+
+    n = 23
+    A = rng.normal(size=(n, 9, 40)) * rng.uniform(0.01, 10.0, size=(n, 9, 1))  # spread-out scales
+    C = A @ A.transpose(0, 2, 1) / 40 + 1e-3 * np.eye(9)
+    C[3] = C[2] * 1.0000001  # a near-duplicate pair: distance ~1e-7
+    D = distance_matrix(C)
+    np.testing.assert_array_equal(D, D.T)
+    assert np.all(np.diag(D) == 0.0)
+    np.testing.assert_allclose(D, pairwise_distance(C), rtol=1e-12, atol=1e-13)
+    for i, j in [(0, 1), (2, 3), (5, 22), (17, 4)]:
+        assert D[i, j] == pytest.approx(pr_distance(C[i], C[j]), rel=1e-11, abs=1e-13)
+    assert D[2, 3] == pytest.approx(np.sqrt(9) * np.log(1.0000001), rel=1e-6)

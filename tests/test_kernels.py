@@ -519,3 +519,17 @@ def test_warmup_compiles_every_signature_the_tracker_and_a_restore_use():
         tr.update(seq.frame(4).image)
     new = {d.__name__: set(d.signatures) - before[d.__name__] for d in kernels._ENTRY_POINTS}
     assert not any(new.values()), new
+
+
+def test_pair_distances_check_their_inputs():
+    W = np.broadcast_to(np.eye(9), (2, 9, 9))
+    with pytest.raises(ValueError, match="shape"):
+        kernels.pair_distances_fast(np.eye(9), W, [0], [0])
+    with pytest.raises(ValueError, match="one length"):
+        kernels.pair_distances_fast(W, W, [0, 1], [0])
+    with pytest.raises(ValueError, match="indexes past"):
+        kernels.pair_distances_fast(W, W, [0], [2])
+    with pytest.raises(ValueError, match="NaN"):
+        kernels.pair_distances_fast(W, np.full((2, 9, 9), np.nan), [0], [1])
+    # the identity against 2I: sqrt(9 ln²2)
+    assert kernels.pair_distances_fast(W, 2 * W, [0], [1])[0] == pytest.approx(3 * np.log(2.0), rel=1e-14)

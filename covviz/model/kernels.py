@@ -17,6 +17,9 @@ same quantities with less work:
   :data:`LANES` particles, structure-of-arrays, particle index innermost).
 * :func:`quadrant_distances_fast` — ``sqrt(8·JBLD)`` of the quadrants by
   Cholesky factorisations, vectorised across particles the same way.
+* :func:`pair_distances_fast` — the affine-invariant distance of given pairs of
+  SPD matrices (the recorder's and ``covviz mds``'s distance matrices), by the
+  same Jacobi on blocks of pairs.
 
 Precision
 ---------
@@ -131,6 +134,7 @@ __all__ = [
     "LANES",
     "descriptors_fast",
     "kernels_cached",
+    "pair_distances_fast",
     "quadrant_distances_fast",
     "template_distances_fast",
     "warmup",
@@ -1152,6 +1156,79 @@ def template_distances_fast(L, C) -> np.ndarray:
     return out
 
 
+@_jit(_FM_DIST, entry=True)
+def _pair_distances(W, C, I, J, out, mats, vecs, act):
+    """The kernel of :func:`pair_distances_fast`; ``mats`` (6, 9, 9, lanes), ``vecs`` (5, lanes) and
+    ``act`` (lanes,) bool are its workspace (:func:`_template_distances`'s, whose last two steps it shares)."""
+    n = I.shape[0]
+    lanes = mats.shape[3]
+    X, T, E, Cb = mats[0], mats[4], mats[3], mats[5]
+    t_, s_, tau_ = vecs[2], vecs[3], vecs[4]
+    nb = max(1, -(-n // lanes))
+    size = max(1, -(-n // nb))
+    for i0 in range(0, n, size):
+        m = min(size, n - i0)
+        for l in range(m):
+            wi = I[i0 + l]
+            cj = J[i0 + l]
+            for a in range(9):
+                for b in range(9):
+                    E[a, b, l] = W[wi, a, b]
+                    Cb[a, b, l] = C[cj, a, b]
+        _lanes_mul(E, Cb, T, m)  # T = W_i C_j
+        _lanes_upper_abt(T, E, X, m)  # W_i C_j W_i (symmetric): the upper triangle
+        _lanes_jacobi(X, m, 1e-14, 30, t_, s_, tau_, act)
+        for l in range(m):
+            acc = 0.0
+            for a in range(9):
+                lw = math.log(max(X[a, a, l], 1e-300))
+                acc += lw * lw
+            out[i0 + l] = math.sqrt(acc)
+
+
+def pair_distances_fast(W, C, I, J) -> np.ndarray:
+    """``d(X_I[k], C_J[k])`` for pairs ``k``, given the whitening matrices ``W = X^{-1/2}``.
+
+    Parameters
+    ----------
+    W : ndarray, shape (n, 9, 9)
+        ``X_i^{-1/2}`` (symmetric), e.g. :func:`covviz.model.spd.invsqrtm` of the first set.
+    C : ndarray, shape (m, 9, 9)
+        SPD matrices of the second set.
+    I, J : ndarray, shape (p,), int
+        The pairs: rows of ``W`` and of ``C``.
+
+    Returns
+    -------
+    ndarray, shape (p,), float64
+
+    Notes
+    -----
+    The affine-invariant distance ``sqrt(Σ ln² λ)`` over the eigenvalues of
+    ``W_i C_j W_i``, found by the cyclic Jacobi of :func:`template_distances_fast`
+    on blocks of :data:`LANES` pairs. Agrees with
+    :func:`covviz.model.spd.pairwise_distance` (LAPACK's ``eigvalsh``) to
+    ~1e-13. :func:`covviz.embedding.distance_matrix` uses it for the recorder's
+    and ``covviz mds``'s distance matrices.
+    """
+    W = np.ascontiguousarray(W, dtype=np.float64)
+    C = np.ascontiguousarray(C, dtype=np.float64)
+    I = np.ascontiguousarray(I, dtype=np.int64)
+    J = np.ascontiguousarray(J, dtype=np.int64)
+    if W.ndim != 3 or W.shape[1:] != (9, 9) or C.ndim != 3 or C.shape[1:] != (9, 9):
+        raise ValueError(f"W and C must have shape (n, 9, 9); got {W.shape} and {C.shape}")
+    if I.shape != J.shape or I.ndim != 1:
+        raise ValueError(f"I and J must be 1-D of one length; got {I.shape} and {J.shape}")
+    if len(I) and (I.min() < 0 or I.max() >= len(W) or J.min() < 0 or J.max() >= len(C)):
+        raise ValueError("I or J indexes past W or C")
+    if not (np.isfinite(W).all() and np.isfinite(C).all()):
+        raise ValueError("W or C contains NaN or inf; check the inputs that produced it")
+    out = np.empty(len(I))
+    mats, vecs, _, act = _workspace("template", 9, 6, 5)
+    _pair_distances(W, C, I, J, out, mats, vecs, act)
+    return out
+
+
 _BIG = 2.0**500  # rescaling step of the pivot products (a power of two: exact)
 
 
@@ -1282,6 +1359,7 @@ def _warmup_calls():
     C, Q = warp_descriptors_fast(gray, poses, (16.0, 16.0), 8, 1.0, 1e-3, True, True)
     template_distances_fast(np.zeros((2, 9, 9)), C)
     quadrant_distances_fast(Q, Q[0], np.zeros(4))
+    pair_distances_fast(np.broadcast_to(np.eye(9), (2, 9, 9)), C, np.array([0, 1]), np.array([1, 0]))
     # The frozen model's quadrant references and a restored snapshot's templates are read-only
     # arrays, which numba compiles as another signature: warm those too, or the first frames compile.
     ro = lambda a: np.frombuffer(np.ascontiguousarray(a).tobytes(), dtype=a.dtype).reshape(a.shape)
