@@ -340,6 +340,7 @@ class RerunLogger(Observer):
         self.log_seconds = 0.0  # time spent in on_frame, for the overhead benchmark
         #: The per-frame scalars, sent as columns (covviz.viz.series) every ``series_seconds``.
         self.series = SeriesBuffer(stream, self.config.series_every, self.config.series_seconds)
+        self._styled: set[str] = set()  # entities of _put_points whose static style is logged
 
     # ------------------------------------------------------------------ #
     def on_start(self, start: RunStart, found: Findings) -> None:
@@ -746,6 +747,19 @@ class RerunLogger(Observer):
         truth = patches[1] if gt is not None else None
         self._put_image(f"{s.paths.zoom}/patches", why.zoom_image([patches[0], truth, s.initial_patch]), "L")
 
+    def _put_points(self, path: str, positions: np.ndarray, style: dict, labels=None) -> None:
+        """Points drawn on some frames (the MDS pictures): their positions (and ``labels``) with the series'
+        columns, their ``style`` (one colour, radius, draw order for all, the same on every frame) static,
+        logged once per entity; or everything in one log call (``views_in_columns``)."""
+        if not self.config.views_in_columns:
+            self.stream.log(path, rr.Points2D(positions, **style, **({} if labels is None else {"labels": labels})))
+            return
+        if path not in self._styled:
+            self._styled.add(path)
+            self.stream.log(path, rr.Points2D.from_fields(**style), static=True)
+        self.series.add_points(path, positions, labels=None if labels is None else
+                               np.broadcast_to(np.asarray(labels, dtype=object), (len(positions),)))
+
     def _put_boxes(self, path: str, boxes: np.ndarray) -> None:
         """A per-frame ``(n, 4)`` batch of ``x, y, w, h`` boxes: with the series' columns, or its own log call
         (``views_in_columns``); its style is static."""
@@ -1103,12 +1117,15 @@ class RerunLogger(Observer):
             path = f"{root}/{kind}"
             if m.any():
                 st = dict(style[kind])
-                text = st.pop("labels", None) if kind in nudge else None
-                rec.log(path, rr.Points2D(X[m], draw_order=float(order), **st))
-                if text:
-                    at = X[m][:1] + np.array([0.0, nudge[kind] * float((hi - lo).max() + 1e-9)])
-                    rec.log(f"{path}_label", rr.Points2D(at, labels=text, radii=[0.0], colors=st["colors"],
-                                                         show_labels=True, draw_order=20.0))
+                text = st.pop("labels", None)
+                if kind in nudge:
+                    self._put_points(path, X[m], {**st, "draw_order": float(order)})
+                    if text:
+                        at = X[m][:1] + np.array([0.0, nudge[kind] * float((hi - lo).max() + 1e-9)])
+                        self._put_points(f"{path}_label", at, {"radii": [0.0], "colors": st["colors"],
+                                                               "show_labels": True, "draw_order": 20.0}, text)
+                else:
+                    self._put_points(path, X[m], {**st, "draw_order": float(order)}, text)
             else:
                 rec.log(path, rr.Clear(recursive=False))
                 if kind in nudge:
@@ -1116,7 +1133,7 @@ class RerunLogger(Observer):
         # Two invisible points a margin outside the picture, so the view's automatic bounds leave
         # room for the labels of points on the edge.
         pad = 0.15 * (hi - lo).max() + 1e-6
-        rec.log(f"{root}/margin", rr.Points2D([lo - pad, hi + pad], radii=[0.0], colors=[(0, 0, 0, 0)]))
+        self._put_points(f"{root}/margin", np.stack([lo - pad, hi + pad]), {"radii": [0.0], "colors": [(0, 0, 0, 0)]})
         return stress1(X, D)
 
     # ------------------------------------------------------------------ #

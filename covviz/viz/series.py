@@ -82,13 +82,18 @@ class SeriesBuffer:
         img = np.ascontiguousarray(image, dtype=np.uint8)
         self._hold(self._images, (path, img.shape, color_model), img, "add_image")
 
-    def add_points(self, path: str, positions: np.ndarray, colors: np.ndarray, radii: np.ndarray | None = None) -> None:
-        """One frame's ``Points2D`` of the entity at ``path`` (``(n, 2)`` positions, ``(n, 4)`` uint8 colours,
-        optional ``(n,)`` radii; ``n`` may be 0: the frame shows none), sent with the series."""
-        fields = {"positions": np.asarray(positions, np.float32).reshape(-1, 2),
-                  "colors": np.asarray(colors, np.uint8).reshape(-1, 4)}
+    def add_points(self, path: str, positions: np.ndarray, colors: np.ndarray | None = None,
+                   radii: np.ndarray | None = None, labels=None) -> None:
+        """One frame's ``Points2D`` of the entity at ``path`` (``(n, 2)`` positions; optional ``(n, 4)`` uint8
+        colours, ``(n,)`` radii and ``n`` labels, where absent the entity's static ones; ``n`` may be 0: the
+        frame shows none), sent with the series."""
+        fields = {"positions": np.asarray(positions, np.float32).reshape(-1, 2)}
+        if colors is not None:
+            fields["colors"] = np.asarray(colors, np.uint8).reshape(-1, 4)
         if radii is not None:
             fields["radii"] = np.asarray(radii, np.float32).reshape(-1)
+        if labels is not None:
+            fields["labels"] = np.asarray(labels, dtype=object).reshape(-1)
         self._hold(self._batches, (path, "points"), fields, "add_points")
 
     def add_strips(self, path: str, strips: np.ndarray, colors: np.ndarray | None = None,
