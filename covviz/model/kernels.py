@@ -1089,6 +1089,14 @@ def _lanes_jacobi(A, m, tol, max_sweeps, t_, s_, tau_, act):
     return sweeps
 
 
+@_jit(_FM_DIST)
+def _block_size(n, lanes):
+    """Items per block when ``n`` are cut into equal blocks of at most ``lanes`` (150 -> 3 x 50, not
+    64 + 64 + 22): the lane kernels' loops over blocks."""
+    nb = max(1, -(-n // lanes))
+    return max(1, -(-n // nb))
+
+
 @_jit(_FM_DIST, entry=True)
 def _template_distances(L, C, out, mats, vecs, k, act):
     """The kernel of :func:`template_distances_fast`; ``mats`` (6, 9, 9, lanes), ``vecs`` (5, lanes),
@@ -1097,9 +1105,7 @@ def _template_distances(L, C, out, mats, vecs, k, act):
     lanes = mats.shape[3]
     X, X2, X3, E, T, Cb = mats[0], mats[1], mats[2], mats[3], mats[4], mats[5]
     c, sc, t_, s_, tau_ = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4]
-    # Equal blocks of at most `lanes` particles (150 -> 3 x 50, not 64 + 64 + 22).
-    nb = max(1, -(-n // lanes))
-    size = max(1, -(-n // nb))
+    size = _block_size(n, lanes)
     for i0 in range(0, n, size):
         m = min(size, n - i0)
         for l in range(m):
@@ -1164,8 +1170,7 @@ def _pair_distances(W, C, I, J, out, mats, vecs, act):
     lanes = mats.shape[3]
     X, T, E, Cb = mats[0], mats[4], mats[3], mats[5]
     t_, s_, tau_ = vecs[2], vecs[3], vecs[4]
-    nb = max(1, -(-n // lanes))
-    size = max(1, -(-n // nb))
+    size = _block_size(n, lanes)
     for i0 in range(0, n, size):
         m = min(size, n - i0)
         for l in range(m):
@@ -1290,9 +1295,7 @@ def _quadrant_distances(Q, ref, ref_logdet, out, mats, vecs):
     lanes = mats.shape[3]
     A, W = mats[0], mats[1]
     ldq, ldm, sc = vecs[0], vecs[1], vecs[2]
-    # Equal blocks of at most `lanes` particles (150 -> 3 x 50, not 64 + 64 + 22).
-    nb = max(1, -(-n // lanes))
-    size = max(1, -(-n // nb))
+    size = _block_size(n, lanes)
     for i0 in range(0, n, size):
         m = min(size, n - i0)
         for k in range(nq):
