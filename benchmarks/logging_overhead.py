@@ -241,7 +241,7 @@ def main(argv=None) -> int:
         def untraced_run():
             return one_run(seq, args.frames, args.particles, args.seed, None, args.mds_every, bare=args.bare)
 
-        def traced_run():
+        def traced_run(k=k):
             return one_run(seq, args.frames, args.particles, args.seed, tmp / f"t{k}.rrd", args.mds_every,
                            background=not args.foreground)
 

@@ -269,7 +269,7 @@ def test_without_on_track_scores_the_diagnosis_is_the_same(name):
             if f.name in scores and ea.label == "ok":
                 assert y is None or np.isnan(y), (ea.frame, f.name)
                 assert x is not None and (isinstance(x, dict) or np.isfinite(x))
-            elif isinstance(x, np.ndarray) or isinstance(x, float):
+            elif isinstance(x, (np.ndarray, float)):
                 assert np.array_equal(x, y, equal_nan=True), (ea.frame, f.name)
             else:
                 assert x == y, (ea.frame, f.name)

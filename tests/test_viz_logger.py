@@ -611,7 +611,7 @@ def test_views_in_columns_or_one_log_each_record_the_same(tmp_path, run):
         drawn = N_FRAMES // MDS_EVERY - 1 if "cloud" in entity else N_FRAMES - 2  # the pictures: every k-th frame
         assert set(a) == set(b) and len(b) >= drawn, (entity, column, len(a), len(b))
         for f in b:
-            if column.endswith("media_type") or column.endswith("labels"):
+            if column.endswith(("media_type", "labels")):
                 assert a[f] == b[f] and all(isinstance(t, str) for t in b[f]), (entity, f, a[f], b[f])
                 continue
             np.testing.assert_array_equal(np.asarray(a[f], dtype=float), np.asarray(b[f], dtype=float),

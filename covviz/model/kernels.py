@@ -93,7 +93,6 @@ class _NoScipyLinalg(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
         if name in ("scipy.linalg", "scipy.linalg.cython_blas") and threading.get_ident() == self.owner:
             raise ImportError(f"{name}: not imported at start-up (covviz.model.kernels)")
-        return None
 
 
 def _import_numba_arraymath() -> None:
