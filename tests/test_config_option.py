@@ -1,10 +1,11 @@
-"""``--config FILE.json`` of ``covviz track`` and ``covviz bench``: a ManifoldConfig from a file."""
+"""``--config FILE.json`` of ``covviz track`` and ``covviz bench``: a ManifoldConfig from a file (or inline JSON)."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from helpers import write_otb
 
@@ -47,6 +48,34 @@ def test_track_runs_the_config_of_the_file(root, tmp_path, monkeypatch, tracker)
     # --particles overrides the file's n_particles
     assert main([*argv, "--particles", "12"]) == 0
     assert load_result(result_paths(tmp_path / "runs", "alpha", tracker, 0)[1])[0]["config"]["n_particles"] == 12
+
+
+def test_track_takes_the_config_inline_as_from_a_file(root, tmp_path, monkeypatch):
+    """``--config '{"likelihood_sigma": 0.7}'``, as the README writes the options: the run and its results are
+    those of the same JSON in a file; bad inline JSON is a one-line error naming it, and a missing file says both
+    forms."""
+    monkeypatch.chdir(tmp_path)
+    fields = {"likelihood_sigma": 0.7, "n_particles": 30, "camera_share": 0.5}
+    cfg = write_config(tmp_path / "c.json", **fields)
+    base = ["track", str(root / "alpha"), "--trackers", "manifold", "--no-save", "--no-progress"]
+    assert main([*base, "--config", str(cfg), "--out", str(tmp_path / "f")]) == 0
+    assert main([*base, "--config", " " + json.dumps(fields), "--out", str(tmp_path / "i")]) == 0
+    (a, boxes_a), (b, boxes_b) = (load_result(result_paths(tmp_path / d, "alpha", "manifold", 0)[1])
+                                  for d in ("f", "i"))
+    assert a["config"] == b["config"] and a["config"]["camera_share"] == 0.5
+    assert np.array_equal(boxes_a, boxes_b)
+
+
+def test_bad_inline_config_and_missing_file_are_one_line_errors(root, tmp_path, capsys):
+    base = ["track", str(root / "alpha"), "--no-save", "--no-progress", "--out", str(tmp_path / "o")]
+    assert main([*base, "--config", '{"camera_share": 0.5']) == 2
+    msg = one_line_error(capsys)
+    assert msg.startswith("covviz track: error: --config: not JSON"), msg
+    assert main([*base, "--config", '{"camera_share": 2}']) == 2
+    assert "camera_share must be a number in [0, 1]" in one_line_error(capsys)
+    assert main([*base, "--config", str(tmp_path / "none.json")]) == 2
+    assert "give a JSON file, or a JSON object in quotes" in one_line_error(capsys)
+    assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize(

@@ -98,10 +98,10 @@ def tracker_specs(names) -> list:
 def add_config_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--config",
-        type=Path,
-        metavar="FILE.json",
-        help="ManifoldConfig of the manifold trackers: a JSON object of its fields, the others default "
-        "(e.g. the best.json of 'covviz tune'); --particles overrides its n_particles",
+        metavar="FILE.json|JSON",
+        help="ManifoldConfig of the manifold trackers: a JSON object of its fields, the others default, in a "
+        "file (e.g. the best.json of 'covviz tune') or inline ('{\"camera_share\": 0.5}'); --particles "
+        "overrides its n_particles",
     )
 
 
@@ -284,15 +284,31 @@ def _check_out_dir(out: Path, created: list[Path] | None = None) -> None:
     except OSError as exc:
         raise UsageError(f"cannot write to {out}: {exc.strerror or exc}; choose another --out") from None
 
-def read_config(path: Path | None, trackers: list[str]):
-    """``--config FILE``: the ManifoldConfig in a JSON file of its fields (None without the option).
+def config_doc(value: str | Path):
+    """What ``--config`` gives: a JSON object written inline (the text starts with ``{``) or the JSON in a file.
 
-    Fields left out keep their defaults; ``--particles`` overrides ``n_particles``.
-    Raises :class:`UsageError` (one line) on a missing or bad file, or when no tracker
-    of ``trackers`` takes a config.
+    Raises :class:`UsageError` (one line) on a missing file or text that is not JSON.
     """
     import json
 
+    text = str(value)
+    inline = text.lstrip().startswith("{")
+    where = "--config" if inline else f"--config {text}"
+    try:
+        return json.loads(text if inline else Path(text).read_text())
+    except OSError as exc:
+        raise UsageError(f"{where}: {exc.strerror or exc} (give a JSON file, or a JSON object in quotes)") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UsageError(f"{where}: not JSON ({exc}); give a JSON object of ManifoldConfig fields") from None
+
+
+def read_config(path: str | Path | None, trackers: list[str]):
+    """``--config FILE`` (or an inline JSON object): the ManifoldConfig of its fields (None without the option).
+
+    Fields left out keep their defaults; ``--particles`` overrides ``n_particles``.
+    Raises :class:`UsageError` (one line) on a missing or bad file or text, or when no tracker
+    of ``trackers`` takes a config.
+    """
     from covviz.trackers import CONFIGURABLE
     from covviz.trackers.variants import VARIANT_SEP
 
@@ -309,12 +325,7 @@ def read_config(path: Path | None, trackers: list[str]):
         )
     from covviz.trackers.manifold import ManifoldConfig
 
-    try:
-        doc = json.loads(Path(path).read_text())
-    except OSError as exc:
-        raise UsageError(f"--config {path}: {exc.strerror or exc}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UsageError(f"--config {path}: not JSON ({exc}); give a JSON object of ManifoldConfig fields") from None
+    doc = config_doc(path)
     try:
         return ManifoldConfig.from_dict(doc)
     except (ValueError, TypeError) as exc:

@@ -20,6 +20,7 @@ from covviz.cli.common import (
     add_config_arg,
     add_frames_by_arg,
     add_recording_args,
+    config_doc,
     default_recording_path,
     log,
     nonneg_int,
@@ -309,7 +310,6 @@ def _threads_for_recording(args, trackers) -> None:
 
     A ``threads`` given in ``--config`` or in a variant's file is kept.
     """
-    import json
 
     from covviz.api import observe_threads_for_recording
 
@@ -317,7 +317,7 @@ def _threads_for_recording(args, trackers) -> None:
     if args.no_save and not live:
         return
     config_path = getattr(args, "config", None)
-    given = config_path is not None and "threads" in json.loads(Path(config_path).read_text())  # read_config checked it
+    given = config_path is not None and "threads" in config_doc(config_path)  # read_config checked it
     specs = tracker_specs(args.trackers)
     keep = ["threads" in s.config_dict() if s.config_path is not None else given for s in specs]
     observe_threads_for_recording(trackers, keep)

@@ -47,9 +47,9 @@ def add_tune_parser(sub) -> argparse.ArgumentParser:
                    help="held-out seeds K..K+H-1 for the final check (default: as many as --seeds; 0: none)")
     p.add_argument("--max-frames", type=positive_int, metavar="N", help="run only the first N frames of each sequence")
     p.add_argument("--particles", type=positive_int, help="particles (default: the config's)")
-    p.add_argument("--config", type=Path, metavar="FILE.json",
-                   help="base ManifoldConfig (JSON of its fields): the first trial, and the values of the fields "
-                   "not searched")
+    p.add_argument("--config", metavar="FILE.json|JSON",
+                   help="base ManifoldConfig (a JSON object of its fields, in a file or inline): the first trial, "
+                   "and the values of the fields not searched")
     p.add_argument("--jobs", type=positive_int, default=1, metavar="J",
                    help="jobs at a time on this machine (default 1), each in a fresh process")
     add_cluster_args(p)
