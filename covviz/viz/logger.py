@@ -340,7 +340,7 @@ class RerunLogger(Observer):
         self.log_seconds = 0.0  # time spent in on_frame, for the overhead benchmark
         #: The per-frame scalars, sent as columns (covviz.viz.series) every ``series_seconds``.
         self.series = SeriesBuffer(stream, self.config.series_every, self.config.series_seconds)
-        self._styled: set[str] = set()  # entities of _put_points whose static style is logged
+        self._styled: set[str] = set()  # entities whose static style is logged (_style_once)
 
     # ------------------------------------------------------------------ #
     def on_start(self, start: RunStart, found: Findings) -> None:
@@ -410,8 +410,6 @@ class RerunLogger(Observer):
         )
 
         # Static styles of the time series and overlays.
-        if cfg.views_in_columns:  # what the frame's column rows leave out
-            rec.log(P.IMAGE, rr.EncodedImage.from_fields(draw_order=FRAME_DRAW_ORDER), static=True)
         rec.log(
             P.GROUND_TRUTH,
             rr.Boxes2D.from_fields(colors=[GT_COLOR], radii=[0.9], show_labels=False, draw_order=40.0),
@@ -460,13 +458,6 @@ class RerunLogger(Observer):
                 )
             why.log_static(rec, p, s.prefix, c, s.name in with_cloud)
             story.log_story_static(rec, p)
-            if cfg.views_in_columns and s.info.particles:  # what the particles' column rows leave out
-                rec.log(p.particles, rr.LineStrips2D.from_fields(radii=[PARTICLE_RADIUS], draw_order=20.0),
-                        static=True)
-                rec.log(p.top, rr.LineStrips2D.from_fields(colors=[TOP_COLOR], radii=[0.6], draw_order=TOP_DRAW_ORDER),
-                        static=True)
-                rec.log(p.particle_dots, rr.Points2D.from_fields(radii=[DOT_RADIUS], draw_order=19.0), static=True)
-                rec.log(p.centres, rr.Points2D.from_fields(draw_order=25.0), static=True)
             rec.log(
                 p.box,
                 rr.Boxes2D.from_fields(
@@ -510,11 +501,7 @@ class RerunLogger(Observer):
             rec.log(P.LAYOUT, rr.AnyValues(image_size=[int(w), int(h)]), static=True)
             self._blueprint_args = None
         self._set_time(frame)
-        jpeg = jpeg_bytes(frame.image, cfg.jpeg_quality)
-        if cfg.views_in_columns:
-            self.series.add_encoded_image(P.IMAGE, jpeg, "image/jpeg")
-        else:
-            rec.log(P.IMAGE, rr.EncodedImage(contents=jpeg, media_type="image/jpeg", draw_order=FRAME_DRAW_ORDER))
+        self._put_jpeg(P.IMAGE, jpeg_bytes(frame.image, cfg.jpeg_quality), {"draw_order": FRAME_DRAW_ORDER})
         problems: list[str] = []
         gt = checked(frame.gt, (4,), "ground truth", problems)
         if gt is not None:
@@ -578,11 +565,7 @@ class RerunLogger(Observer):
                                              show_labels=True, draw_order=46.0))
         corners = checked(record.corners, (4, 2), "corners", problems)
         if corners is not None:
-            strips = closed_strips(corners[None]).astype(np.float32)
-            if self.config.views_in_columns:
-                self.series.add_strips(p.region, strips)
-            else:
-                rec.log(p.region, rr.LineStrips2D(strips))
+            self._put_strips(p.region, closed_strips(corners[None]).astype(np.float32), {})  # styled in on_start
         return box
 
     def _log_particles(self, s: _TrackerState, record: FrameRecord, problems: list) -> None:
@@ -609,14 +592,10 @@ class RerunLogger(Observer):
             boxed, dotted = order[heavy], order[~heavy]
             strips = (np.round(closed_strips(pc[boxed]) / q) * q).astype(np.float32)
             dots = np.round(pc[dotted].mean(axis=1) / q) * q
-            if cfg.views_in_columns:
-                self.series.add_strips(p.particles, strips, s.lut[level[boxed]])
-                self.series.add_points(p.particle_dots, dots, s.lut[level[dotted]])
-            else:
-                rec.log(p.particles, rr.LineStrips2D(strips, colors=s.lut[level[boxed]], radii=PARTICLE_RADIUS,
-                                                     draw_order=20.0))
-                rec.log(p.particle_dots, rr.Points2D(dots, radii=DOT_RADIUS, colors=s.lut[level[dotted]],
-                                                     draw_order=19.0))
+            self._put_strips(p.particles, strips, {"radii": [PARTICLE_RADIUS], "draw_order": 20.0},
+                             colors=s.lut[level[boxed]])
+            self._put_points(p.particle_dots, dots, {"radii": [DOT_RADIUS], "draw_order": 19.0},
+                             colors=s.lut[level[dotted]])
             top = top_k(w, cfg.top_k)
             top_any = {"weight": w[top].astype(np.float64), "particle": top.astype(np.int64)}
             dist = checked(record.distances, (len(w),), "distances", problems)
@@ -637,20 +616,13 @@ class RerunLogger(Observer):
             contrib = term_contributions(record, len(w), problems)
             for k, c in contrib.items():
                 top_any[f"term_{k}"] = c[top]
-            top_strips = closed_strips(pc[top]).astype(np.float32)
-            if cfg.views_in_columns:
-                self.series.add_strips(p.top, top_strips, values=top_any)  # its colour, radius, order: static
-            else:
-                rec.log(p.top, rr.LineStrips2D(top_strips, colors=[TOP_COLOR], radii=0.6, draw_order=TOP_DRAW_ORDER),
-                        rr.AnyValues(**top_any))
+            self._put_strips(p.top, closed_strips(pc[top]).astype(np.float32),
+                             {"colors": [TOP_COLOR], "radii": [0.6], "draw_order": TOP_DRAW_ORDER}, values=top_any)
             radii = np.round(CENTRE_RADIUS * np.sqrt(wn[order]) * 4) / 4
             vis = radii >= MIN_CENTRE_RADIUS
             centres = np.round(pc[order[vis]].mean(axis=1) / q) * q
-            if cfg.views_in_columns:
-                self.series.add_points(p.centres, centres, s.lut[level[order[vis]]], radii[vis])
-            else:
-                rec.log(p.centres, rr.Points2D(centres, radii=radii[vis].astype(np.float32),
-                                               colors=s.lut[level[order[vis]]], draw_order=25.0))
+            self._put_points(p.centres, centres, {"draw_order": 25.0}, colors=s.lut[level[order[vis]]],
+                             radii=radii[vis].astype(np.float32))
             ess = float(record.ess) if np.isfinite(record.ess) else effective_sample_size(lw)
             self.series.add(p.ess, ess / n)
             self.series.add(p.max_weight, float(w.max()))
@@ -747,18 +719,41 @@ class RerunLogger(Observer):
         truth = patches[1] if gt is not None else None
         self._put_image(f"{s.paths.zoom}/patches", why.zoom_image([patches[0], truth, s.initial_patch]), "L")
 
-    def _put_points(self, path: str, positions: np.ndarray, style: dict, labels=None) -> None:
-        """Points drawn on some frames (the MDS pictures): their positions (and ``labels``) with the series'
-        columns, their ``style`` (one colour, radius, draw order for all, the same on every frame) static,
-        logged once per entity; or everything in one log call (``views_in_columns``)."""
-        if not self.config.views_in_columns:
-            self.stream.log(path, rr.Points2D(positions, **style, **({} if labels is None else {"labels": labels})))
-            return
-        if path not in self._styled:
+    # Per-frame views: with the series' columns (``views_in_columns``), their style -- what is the same on
+    # every frame -- logged once per entity as static; or each frame's view in one log call, style and all.
+    def _style_once(self, path: str, archetype, style: dict) -> None:
+        if style and path not in self._styled:
             self._styled.add(path)
-            self.stream.log(path, rr.Points2D.from_fields(**style), static=True)
-        self.series.add_points(path, positions, labels=None if labels is None else
+            self.stream.log(path, archetype.from_fields(**style), static=True)
+
+    def _put_points(self, path: str, positions: np.ndarray, style: dict, labels=None, colors=None,
+                    radii=None) -> None:
+        """One frame's points; ``labels``, ``colors`` and ``radii``, where given, per point (or one for all)."""
+        if not self.config.views_in_columns:
+            per = {k: v for k, v in (("labels", labels), ("colors", colors), ("radii", radii)) if v is not None}
+            self.stream.log(path, rr.Points2D(positions, **style, **per))
+            return
+        self._style_once(path, rr.Points2D, style)
+        self.series.add_points(path, positions, colors, radii, labels=None if labels is None else
                                np.broadcast_to(np.asarray(labels, dtype=object), (len(positions),)))
+
+    def _put_strips(self, path: str, strips: np.ndarray, style: dict, colors=None, values=None) -> None:
+        """One frame's line strips, with per-strip ``colors`` and ``values`` (``rr.AnyValues``) where given."""
+        if not self.config.views_in_columns:
+            extra = [] if values is None else [rr.AnyValues(**values)]
+            self.stream.log(path, rr.LineStrips2D(strips, **style, **({} if colors is None else {"colors": colors})),
+                            *extra)
+            return
+        self._style_once(path, rr.LineStrips2D, style)
+        self.series.add_strips(path, strips, colors, values)
+
+    def _put_jpeg(self, path: str, jpeg: bytes, style: dict) -> None:
+        """One frame's JPEG image."""
+        if not self.config.views_in_columns:
+            self.stream.log(path, rr.EncodedImage(contents=jpeg, media_type="image/jpeg", **style))
+            return
+        self._style_once(path, rr.EncodedImage, style)
+        self.series.add_encoded_image(path, jpeg, "image/jpeg")
 
     def _put_boxes(self, path: str, boxes: np.ndarray) -> None:
         """A per-frame ``(n, 4)`` batch of ``x, y, w, h`` boxes: with the series' columns, or its own log call
