@@ -88,7 +88,7 @@ def distance_matrix(C: np.ndarray, metric: str = "riemann", batch_size: int = 40
 
         if kernels.JIT_ENABLED:
             # The compiled Jacobi on the whitened pairs (covviz.model.kernels.pair_distances_fast): the
-            # same distances to ~1e-13, 3-4x faster than LAPACK's eigvalsh on ~1 300 9x9 pairs.
+            # same distances to ~1e-13, 2.8x faster than numpy's eigvalsh on 1 275 9x9 pairs (2.4 against 6.6 ms).
             I, J = np.triu_indices(len(C), k=1)
             D = np.zeros((len(C), len(C)))
             D[I, J] = kernels.pair_distances_fast(invsqrtm(C), C, I, J)
