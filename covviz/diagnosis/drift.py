@@ -43,6 +43,7 @@ from covviz.model.image import to_gray
 from covviz.model.observation import ObservationModel, box_to_pose
 from covviz.model.particles import effective_sample_size
 from covviz.model.spd import distance_jbld, distance_riemann, logdet, mean_logeuclid
+from covviz.model.stats import median
 from covviz.runner import Findings, Observer, RunStart
 
 __all__ = [
@@ -639,7 +640,7 @@ def _nanmax(*values: float) -> float:
 def _nanmedian(values) -> float:
     v = np.asarray([x for x in values if x is not None], dtype=np.float64)
     v = v[np.isfinite(v)]
-    return float(np.median(v)) if len(v) else float("nan")
+    return float(median(v)) if len(v) else float("nan")
 
 
 def _strengths(ev: dict, look, cfg: DiagnosisConfig, hold_c: float, jump: float) -> dict[str, float]:
@@ -1003,12 +1004,13 @@ class Diagnoser(Observer):
             run = np.array(s.d_run)
             jump = False
             if len(run) >= max(5, cfg.suspect_window // 2):
-                med = float(np.median(run))
-                mad = float(np.median(np.abs(run - med))) + 1e-6
+                med = float(median(run))
+                mad = float(median(np.abs(run - med))) + 1e-6
                 jump = ev.d_min > med + cfg.suspect_mads * mad
                 value = (ev.d_min - med) / mad
+            # The text only where it is raised (formatting it on every frame was a median and a string a frame).
             raise_once("distance_jump", jump,
-                       f"best distance {ev.d_min:.2f} left its running range (median {np.median(run) if len(run) else 0:.2f})",
+                       f"best distance {ev.d_min:.2f} left its running range (median {med:.2f})" if jump else "",
                        value if jump else 0.0)
             if not jump:
                 s.d_run.append(ev.d_min)

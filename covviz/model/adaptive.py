@@ -50,6 +50,7 @@ import numpy as np
 
 from covviz.config import ConfigError, Spec, check, from_mapping
 from covviz.model.dynamics import SCALE, THETA, VX, VY, KinematicModel, X, Y
+from covviz.model.stats import median
 
 __all__ = ["ADAPTIVE_SPECS", "AdaptState", "AdaptiveDiffusion", "adapted_kinematics", "evidence", "redetect",
            "robust_z"]
@@ -169,8 +170,8 @@ def robust_z(x: float, window) -> tuple[float, float, float]:
     ``scale = 1.4826 · MAD + 10⁻³ · max(|m|, 10⁻³)``; the drift detector's ``dmin_z`` signal is the same score.
     """
     win = np.asarray(window, dtype=np.float64)
-    m = float(np.median(win))
-    s = 1.4826 * float(np.median(np.abs(win - m)))
+    m = float(median(win))
+    s = 1.4826 * float(median(np.abs(win - m)))
     scale = s + 1e-3 * max(abs(m), 1e-3)
     return (x - m) / scale, m, scale
 

@@ -25,6 +25,8 @@ import math
 import cv2
 import numpy as np
 
+from covviz.model.stats import median
+
 __all__ = [
     "FB_GRID", "FLOW_FAIL_MAX", "FLOW_FB_MAX", "LK_LEVELS", "LK_WINDOW", "ROI_MARGIN", "gray8", "median_flow", "trusted",
 ]
@@ -106,8 +108,9 @@ def median_flow(
         return float("nan"), float(fail), nan2
     size = math.sqrt(w * h)
     err = np.hypot(*(p0[ok, 0] - p0b[ok, 0]).T)
-    flow = np.median((p1[ok, 0] - p0[ok, 0]).astype(np.float64), axis=0)
-    return float(np.median(err) / size), float(fail), flow
+    moved = (p1[ok, 0] - p0[ok, 0]).astype(np.float64)
+    flow = np.array([median(moved[:, 0]), median(moved[:, 1])])  # np.median(moved, axis=0), bit for bit
+    return float(median(err) / size), float(fail), flow
 
 
 def trusted(fb: float, fail: float, flow: np.ndarray) -> bool:
