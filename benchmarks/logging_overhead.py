@@ -31,11 +31,21 @@ Prints, and writes as JSON with ``--json``:
 * RSS over the long run and its slope in MB per 1000 frames over the second
   half (flat: no growth per frame beyond the recording stream's buffer).
 
+With ``--attribute ROUNDS``, instead of the pairs: the untraced run, the traced run and
+variants of each with one part changed (:data:`ATTRIBUTION`: no observers at all, the
+observers on the tracking thread, one or two observe threads, no on-track scores, no
+likelihood map / slices / cloud, no recorders), all in this process, their order reversed
+every round, and each part's share of the traced run's wall time. CPU timers cannot give
+that share: on two cores an observer's Python, which holds the GIL, costs the tracker
+about its CPU time in wall time, while compiled work that releases the GIL costs far
+less (``benchmarks/observer_cost.py``).
+
 Usage::
 
     python benchmarks/logging_overhead.py                 # ~3-10 min on 2 cores
     python benchmarks/logging_overhead.py --frames 100 --long 300 --repeats 1   # quick look
     python benchmarks/logging_overhead.py ../shared/sequences/Car4 --frames 200 --long 659   # a real sequence
+    python benchmarks/logging_overhead.py ../shared/sequences/Car4 --frames 199 --attribute 6   # ~4 min
 """
 
 from __future__ import annotations
@@ -121,28 +131,52 @@ class TimedObserver(Observer):
         return self.inner.on_end(results, found)
 
 
+#: ``--attribute``: the traced run with one part taken out at a time (a throwaway of nothing: each is a
+#: real switch of the recorded run), and the untraced run on one observe thread. Name -> (traced?, changes).
+ATTRIBUTION = {
+    "untraced": (False, {}),
+    "untraced, no observers (tracking alone)": (False, {"bare": True}),
+    "untraced, observers on the tracking thread": (False, {"background": False}),
+    "untraced, one observe thread": (False, {"threads": 1}),
+    "traced": (True, {}),
+    "traced, two observe threads": (True, {"threads": 2}),
+    "traced, no on-track scores": (True, {"on_track_scores": False}),
+    "traced, no likelihood map, slices or cloud": (True, {"costly_views": False}),
+    "traced, no recorders (diagnosis with on-track scores)": (True, {"recorders": False}),
+}
+
+
 def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds_every: int, extra=(),
-            background: bool = True, bare: bool = False):
+            background: bool = True, bare: bool = False, threads: int | None = None,
+            on_track_scores: bool | None = None, costly_views: bool = True, recorders: bool = True):
+    """One timed run; the keywords after ``bare`` change one part of it (``--attribute``, :data:`ATTRIBUTION`)."""
     inner = ManifoldTracker(ManifoldConfig(n_particles=particles), rng=seed)
-    if rrd is not None and (os.cpu_count() or 1) <= RECORDING_ONE_THREAD_CORES:
+    if threads is not None:
+        inner.set_threads(threads)
+    elif rrd is not None and (os.cpu_count() or 1) <= RECORDING_ONE_THREAD_CORES:
         inner.set_threads(1)  # as `covviz track` records on two cores (its boxes are the same)
     tracker = TimedTracker(inner)
     observers = list(extra)
     if rrd is None and not bare:  # as `covviz track --no-save`: the detector and the diagnosis on their thread
         # (the diagnosis without the template cloud's scores on on-track frames, which only a recorder shows)
-        observers.append(BackgroundObserver(Pipeline([drift_watch(None), Diagnoser(on_track_scores=False)])))
-    logger = None
+        pipe = Pipeline([drift_watch(None), Diagnoser(on_track_scores=bool(on_track_scores))])
+        observers.append(BackgroundObserver(pipe) if background else pipe)
+    logger = drift = None
     if rrd is not None:
-        stream = new_recording()
-        attach_sinks(stream, save=rrd)
-        rerun_logger = RerunLogger(stream, LoggerConfig(mds_every=mds_every, seed=seed))
         # As `covviz track` does: the detector and the logger of its probability, the diagnosis, then
         # the recorder that shows what they found, on one thread of their own (BackgroundObserver).
         # Only the recorders are timed (the detector and the diagnosis run untraced too; the diagnosis's
         # scores of the cloud on on-track frames, for the recorder's why-view, are in the wall time only).
-        logger = TimedObserver(rerun_logger)
-        drift = TimedObserver(DriftRecorder(stream))
-        pipe = Pipeline([drift_watch(None), drift, Diagnoser(), logger])
+        stages = [drift_watch(None), Diagnoser(on_track_scores=on_track_scores is not False)]
+        if recorders:
+            stream = new_recording()
+            attach_sinks(stream, save=rrd)
+            views = {"mds_every": mds_every} if costly_views else {"mds_every": 0, "likelihood_every": 0}
+            rerun_logger = RerunLogger(stream, LoggerConfig(seed=seed, **views))
+            logger = TimedObserver(rerun_logger)
+            drift = TimedObserver(DriftRecorder(stream))
+            stages = [stages[0], drift, stages[1], logger]
+        pipe = Pipeline(stages)
         observers.append(BackgroundObserver(pipe) if background else pipe)
     w0, c0, m0 = time.perf_counter(), time.process_time(), time.thread_time()
     res = run(tracker, seq, observers, max_frames=n_frames, seed=seed)
@@ -155,10 +189,40 @@ def one_run(seq, n_frames: int, particles: int, seed: int, rrd: Path | None, mds
         "logger_cpu_ms": ((logger.cpu + drift.cpu) * per) if logger else 0.0,
         "logger_wall_ms": (rerun_logger.log_seconds * per) if logger else 0.0,
         "other_threads_cpu_ms": (cpu - main) * per,
-        "mb_per_1000": (rrd.stat().st_size / n_frames * 1000 / 1e6) if rrd is not None else None,
+        "mb_per_1000": (rrd.stat().st_size / n_frames * 1000 / 1e6) if logger is not None else None,
         "boxes": res.boxes,
         "observe_threads": inner.config.threads,
     }
+
+
+def attribute(seq, args, tmp: Path) -> dict:
+    """``--attribute``: every variant of :data:`ATTRIBUTION` in turn, ``args.attribute`` rounds; the table."""
+    def go(name, n_frames, k=0):
+        traced, changes = ATTRIBUTION[name]
+        rrd = tmp / f"a{k}.rrd" if traced else None
+        return one_run(seq, n_frames, args.particles, args.seed, rrd, args.mds_every, **changes)["wall_ms"]
+
+    names = list(ATTRIBUTION)
+    for name in names:  # untimed: first calls of each kind
+        go(name, min(10, args.frames))
+    walls: dict[str, list[float]] = {name: [] for name in names}
+    for r in range(args.attribute):
+        for name in names if r % 2 == 0 else names[::-1]:
+            walls[name].append(go(name, args.frames, r))
+        print(f"  round {r + 1}: " + ", ".join(f"{walls[n][-1]:.1f}" for n in names), flush=True)
+    med = {n: statistics.median(w) for n, w in walls.items()}
+    base, full = med["untraced"], med["traced"]
+    print()
+    print("| run | wall ms/frame, median (range) | / untraced | the part's share of the traced run |")
+    print("|---|---|---:|---|")
+    for n in names:
+        share = ""
+        if ATTRIBUTION[n][0] and n != "traced":
+            share = f"{full - med[n]:+.2f} ms ({(full - med[n]) / base:+.3f} of the ratio)"
+        print(f"| {n} | {med[n]:.2f} ({min(walls[n]):.2f}–{max(walls[n]):.2f}) | {med[n] / base:.3f} | {share} |")
+    print(f"\n{args.attribute} rounds of {args.frames} frames; a part's share is the traced run's median minus the "
+          "median without that part (negative: taking it out did not help)")
+    return {"frames": args.frames, "rounds": args.attribute, "wall_ms": walls, "median_wall_ms": med}
 
 
 def main(argv=None) -> int:
@@ -177,6 +241,12 @@ def main(argv=None) -> int:
     ap.add_argument("--bare", action="store_true",
                     help="untraced runs without the drift diagnosis (tracking alone) instead of as covviz track "
                          "--no-save runs")
+    ap.add_argument("--attribute", type=int, metavar="ROUNDS", default=0,
+                    help="instead of the pairs: ROUNDS rounds of the untraced run, the traced run and the traced "
+                         "run with one part off at a time (the on-track scores, the costly views, the recorders; "
+                         "one or two observe threads), their order reversed every round, in this process; prints "
+                         "each part's share of the traced run's wall time (what a CPU timer cannot say: work that "
+                         "holds the GIL costs the tracker more than its CPU time)")
     ap.add_argument("--json", type=Path, help="also write the numbers here")
     ap.add_argument("source", nargs="?", default=None,
                     help="a sequence folder (e.g. ../shared/sequences/Car4); default: the synthetic default. "
@@ -208,6 +278,15 @@ def main(argv=None) -> int:
         f"{1 if (os.cpu_count() or 1) <= RECORDING_ONE_THREAD_CORES else 2} (as covviz track --no-save / records)",
         flush=True,
     )
+
+    if args.attribute:
+        out = attribute(seq, args, tmp)
+        if args.json:
+            args.json.write_text(json.dumps(out, indent=2))
+        for f in tmp.glob("*.rrd"):
+            f.unlink()
+        tmp.rmdir()
+        return 0
 
     # The memory run first, in a fresh process (no leftovers of earlier runs in the heap).
     long_out: dict = {}
