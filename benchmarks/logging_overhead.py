@@ -280,13 +280,7 @@ def main(argv=None) -> int:
     )
 
     if args.attribute:
-        out = attribute(seq, args, tmp)
-        if args.json:
-            args.json.write_text(json.dumps(out, indent=2))
-        for f in tmp.glob("*.rrd"):
-            f.unlink()
-        tmp.rmdir()
-        return 0
+        return _finish(args, attribute(seq, args, tmp), tmp)
 
     # The memory run first, in a fresh process (no leftovers of earlier runs in the heap).
     long_out: dict = {}
@@ -425,6 +419,11 @@ def main(argv=None) -> int:
             f"RSS slope over the second half: {out['rss_slope_mb_per_1000_frames_second_half']:+.1f} MB "
             "per 1000 frames"
         )
+    return _finish(args, out, tmp)
+
+
+def _finish(args, out: dict, tmp: Path) -> int:
+    """Write the numbers (``--json``) and remove the run's recordings."""
     if args.json:
         args.json.write_text(json.dumps(out, indent=2))
     for f in tmp.glob("*.rrd"):
