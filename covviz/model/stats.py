@@ -1,12 +1,12 @@
 """Small statistics the per-frame code calls many times, with ``numpy``'s values to the last bit.
 
-``np.median`` spends ~30 µs a call in its generic machinery (axis handling, the
+``np.median`` spends ~10 µs a call in its generic machinery (axis handling, the
 NaN check, ``np.mean`` of the middle pair) on the 10–60 values the filter's loss
 evidence, the drift signals and the diagnosis take a median of several times a
 frame. :func:`median` gives the same value from one partition (the same
-``(a + b) / 2`` of the middle pair, NaN when any value is NaN) in a few
-microseconds. Equality with ``np.median`` is tested, NaN, infinities and ties
-included.
+zero-started sum of the middle one or two, NaN when any value is NaN) in ~3 µs
+(30 values, measured side by side). Equality with ``np.median`` is tested, NaN,
+infinities, ties and signed zeros included.
 """
 
 from __future__ import annotations
