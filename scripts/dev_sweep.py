@@ -16,6 +16,7 @@ Usage::
     python scripts/dev_sweep.py pair adaptive static --seeds 0,1,2 3,4,5   # paired difference per seed set
     python scripts/dev_sweep.py run chaos '{}' --set AB --seeds 0,1,2 --perturb   # the placebo: another stream only
     python scripts/dev_sweep.py bysequence default chaos --seeds 0,1,2     # how far the stream alone moves each
+    python scripts/dev_sweep.py losses default --seeds 0,1,2,3,4,5        # where the losses recur, and how
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import json
 import os
 import sys
 import time
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -172,6 +174,41 @@ def bysequence(args) -> int:
     return 0
 
 
+def losses(args) -> int:
+    """Per sequence: where a variant's losses recur over the seeds and what its boxes did there
+    (:mod:`covviz.experiments.losses`), from the saved boxes (rounded to two decimals, the OTB results format:
+    a count may differ by one from ``run``'s here and there) and the truth under ``--root``."""
+    from covviz.data.sequences import open_sequence
+    from covviz.experiments.losses import describe_losses, recurring
+
+    seeds = [int(x) for x in args.seeds.split(",")]
+    print(f"| sequence | losses ({len(seeds)} seeds) | found again (median frames) | recurring: lost at (seeds) "
+          f"| box / truth size at the loss (median; > 1.6, < 0.6) | centre within 0.75 sizes |")
+    print("|---|---:|---:|---|---:|---:|")
+    total = Counter()
+    for q in A + B:
+        gt = open_sequence(str(Path(args.root) / q)).groundtruth
+        per_seed = {}
+        for sd in seeds:
+            f = Path(args.out) / args.name / f"{q}_s{sd}.txt"
+            if not f.exists():
+                raise SystemExit(f"{f}: no such run (run it first: dev_sweep.py run {args.name} ...)")
+            b = np.loadtxt(f, delimiter=",", ndmin=2)
+            per_seed[sd] = describe_losses(b, gt[: len(b)])
+        ls = [x for v in per_seed.values() for x in v]
+        found = [x.frames_lost for x in ls if x.found_again is not None]
+        places = ", ".join(f"{a}–{b_} ({c})" for a, b_, c in recurring(per_seed)) or "—"
+        r = np.array([x.size_ratio for x in ls])
+        near = sum(x.centre_offset < 0.75 for x in ls)
+        total.update(losses=len(ls), found=len(found), grew=int((r > 1.6).sum()), shrank=int((r < 0.6).sum()),
+                     near=near)
+        size = f"{np.median(r):.2f}; {(r > 1.6).sum()}, {(r < 0.6).sum()}" if len(ls) else "—"
+        print(f"| {q} | {len(ls)} | {len(found)}" + (f" ({np.median(found):.0f})" if found else "")
+              + f" | {places} | {size} | {near} |")
+    print(f"| **all** | {total['losses']} | {total['found']} | | {total['grew']}, {total['shrank']} | {total['near']} |")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -181,7 +218,6 @@ def main(argv=None) -> int:
     r.add_argument("--set", choices=sorted(SETS), default="A")
     r.add_argument("--seeds", default="0,1,2")
     r.add_argument("--jobs", type=int, default=2)
-    r.add_argument("--root", default=os.environ.get("COVVIZ_SEQUENCES", "../shared/sequences"))
     r.add_argument("--perturb", action="store_true",
                    help="a placebo: the tracker draws one random number more after init, so each run follows "
                         "another random stream and nothing else changes; 'pair BASE NAME' then shows how far "
@@ -194,10 +230,16 @@ def main(argv=None) -> int:
     bs = sub.add_parser("bysequence", help="per sequence: the paired difference of two variants already run")
     bs.add_argument("names", nargs=2)
     bs.add_argument("--seeds", required=True, help="e.g. 0,1,2,3,4,5")
-    for p in (r, t, pr, bs):
+    lo = sub.add_parser("losses", help="per sequence: where a variant's losses recur over the seeds, and how")
+    lo.add_argument("name")
+    lo.add_argument("--seeds", required=True, help="e.g. 0,1,2,3,4,5")
+    for p in (r, lo):
+        p.add_argument("--root", default=os.environ.get("COVVIZ_SEQUENCES", "../shared/sequences"))
+    for p in (r, t, pr, bs, lo):
         p.add_argument("--out", default="runs/sweep", help="results folder (default runs/sweep, outside git)")
     args = ap.parse_args(argv)
-    return {"run": run, "table": table, "pair": pair, "bysequence": bysequence}[args.cmd](args)
+    return {"run": run, "table": table, "pair": pair, "bysequence": bysequence,
+            "losses": losses}[args.cmd](args)
 
 
 if __name__ == "__main__":
