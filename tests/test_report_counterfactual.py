@@ -321,3 +321,25 @@ def test_latex_has_the_replays_tables(bench_dir):
     row = next(ln for ln in gains.splitlines() if ln.startswith(r"\texttt{manifold}"))
     assert row.split(" & ")[3] == "0"  # ΔAUC none, exactly 0, the column after tracker, runs, AUC
     assert tex.count(r"\begin{table}") == tex.count(r"\end{table}") == 2 + 2 + 1  # overall, AUC, replays, 1 sequence
+
+
+def test_where_losses_recur_over_three_seeds(bench_dir):
+    """Two seeds: no recurrence table (too few to tell the scene from chance). A third seed losing elsewhere:
+    the place 22-28 holds 2 of 3 seeds (each counted once), with the verdicts and causes of its three losses."""
+    from covviz.experiments.report import recurring_losses
+
+    out, _ = bench_dir
+    assert recurring_losses(summarize(out)) == {}
+    assert main(["report", str(out), "--out", str(out / "r.md")]) == 0
+    assert "### Where the losses recur" not in (out / "r.md").read_text()
+
+    seq = Path(out).parent / "seqs" / "Walk"
+    b2 = _drifting(np.random.default_rng(3), 40)
+    _save(out, seq, "manifold", 2, b2, [(45, "scale", None)])
+    places = recurring_losses(summarize(out))
+    assert list(places) == ["manifold"]  # csrt ran once
+    assert places["manifold"] == [("Walk", 22, 28, 2, 3, {"search": 2, "model": 1}, {"occlusion": 2, "fast_motion": 1})]
+    assert main(["report", str(out), "--out", str(out / "r.md")]) == 0
+    md = (out / "r.md").read_text().split("### Where the losses recur over the seeds")[1]
+    assert "| `manifold` | Walk | 22–28 | 2/3 | search 2, model 1 | occlusion 2, fast motion 1 |" in md
+    assert "*share*: `manifold` 3 of 4." in md

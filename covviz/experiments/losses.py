@@ -86,7 +86,8 @@ def describe_losses(boxes, groundtruth, found_iou: float = FOUND_IOU) -> list[Lo
 def recurring(losses_per_seed: dict, window: int = 10, min_share: float = 1 / 3) -> list[tuple[int, int, int]]:
     """Where the losses of many seeds of one sequence recur: ``[(first, last, seeds), ...]``, most seeds first.
 
-    ``losses_per_seed`` maps each seed to its run's :class:`Loss` list. Greedily, the ``window`` frames
+    ``losses_per_seed`` maps each seed to its run's losses (:class:`Loss`, or anything with a ``lost_at``, the
+    1-based frame of the loss). Greedily, the ``window`` frames
     in which the most seeds lose the target (each seed counted once) are a place, ``first``–``last``
     being the earliest and latest of those losses; their losses are set aside and the next place is
     sought, while one holds at least ``min_share`` of the seeds (and at least two).

@@ -618,6 +618,82 @@ def _failure_section(summary: Summary) -> list[str]:
     return [*L, ""]
 
 
+#: A place where losses recur: at least this share of a tracker's seeds (and two) lose the target there.
+RECUR_SHARE = 1 / 3
+#: ... within this many frames (:func:`covviz.experiments.losses.recurring`).
+RECUR_WINDOW = 10
+
+
+def recurring_losses(summary: Summary) -> dict[str, list[tuple]]:
+    """Per stochastic tracker run with three seeds or more: ``[(sequence, first, last, seeds, n_seeds, verdicts,
+    causes), ...]``, the places where its seeds' losses recur (:func:`covviz.experiments.losses.recurring`),
+    with the counts of the verdicts (replayed losses) and of the diagnosed causes of the losses there."""
+    from collections import Counter
+
+    from covviz.experiments.losses import recurring
+
+    out: dict[str, list[tuple]] = {}
+    for t in summary.trackers:
+        rs = [r for r in summary.runs if r.tracker == t and r.seed is not None]
+        n_seeds = len({r.seed for r in rs})
+        if t not in summary.stochastic or n_seeds < 3:
+            continue
+        rows = []
+        for seq in summary.sequences:
+            runs = [r for r in rs if r.sequence == seq]
+            per_seed = {r.seed: [_Lost(lost) for _, lost in r.losses] for r in runs}
+            for first, last, k in recurring(per_seed, RECUR_WINDOW, RECUR_SHARE):
+                verdicts, causes = Counter(), Counter()
+                for r in runs:
+                    verdicts.update(x.verdict for x in r.loss_replays if x.verdict and first <= x.lost_at <= last)
+                    causes.update(c for (_, lost), c in zip(r.losses, r.causes) if first <= lost <= last)
+                rows.append((seq, first, last, k, len(runs), dict(verdicts), dict(causes)))
+        out[t] = rows
+    return out
+
+
+@dataclass(frozen=True)
+class _Lost:
+    lost_at: int
+
+
+def _recurring_section(summary: Summary) -> list[str]:
+    """Where the losses of the stochastic trackers recur over the seeds (the scene's losses, not chance's)."""
+    places = recurring_losses(summary)
+    if not places:
+        return []
+    L = [
+        "### Where the losses recur over the seeds",
+        "",
+        (
+            "A stochastic tracker's losses at the same frames on most seeds are the scene's, not the random "
+            f"stream's, and the first to look at: the places (at most {RECUR_WINDOW} frames) where at least "
+            f"{RECUR_SHARE:.0%} of the seeds, and two, "
+            "lose the target, each seed counted once (`covviz.experiments.losses.recurring`), with the verdicts "
+            "of the replayed losses there and their diagnosed causes. *share*: of all the tracker's losses, "
+            "those in a place."
+        ),
+        "",
+        "| tracker | sequence | lost at | seeds | verdicts | causes |",
+        "|---|---|---|---:|---|---|",
+    ]
+    fmt = lambda c: ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in sorted(c.items(), key=lambda kv: -kv[1])) or "—"
+    shares = []
+    for t, rows in places.items():
+        for seq, first, last, k, n, verdicts, causes in rows:
+            span = f"{first}" if first == last else f"{first}–{last}"
+            L.append(f"| `{t}` | {seq} | {span} | {k}/{n} | {fmt(verdicts)} | {fmt(causes)} |")
+        if not rows:
+            L.append(f"| `{t}` | — | | | | |")
+        spans = {}
+        for seq, first, last, *_ in rows:
+            spans.setdefault(seq, []).append((first, last))
+        lost = [(r.sequence, f) for r in summary.runs if r.tracker == t for _, f in r.losses]
+        inside = sum(any(a <= f <= b for a, b in spans.get(seq, ())) for seq, f in lost)
+        shares.append(f"`{t}` {inside} of {len(lost)}")
+    return [*L, "", "*share*: " + "; ".join(shares) + ".", ""]
+
+
 def _fmt_pct(v: float) -> str:
     return "—" if not np.isfinite(v) else f"{100 * v:.0f}%"
 
@@ -718,6 +794,7 @@ def render(summary: Summary, md_path: str | Path, figs: dict[str, Path]) -> str:
         L += [f"Needs `{OURS}` or `{BASELINE}` results; this bench has neither.", ""]
 
     L += _failure_section(summary)
+    L += _recurring_section(summary)
     L += render_section(summary.replays, summary.trackers)
     L += ["## Success AUC per sequence", ""]
     L += [
