@@ -17,6 +17,7 @@ same frames on most seeds is the scene's, not chance's, and the place to look fi
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from dataclasses import dataclass
 
 import numpy as np
@@ -98,14 +99,15 @@ def recurring(losses_per_seed: dict, window: int = 10, min_share: float = 1 / 3)
     left = sorted((ls.lost_at, seed) for seed, losses in losses_per_seed.items() for ls in losses)
     places = []
     while left:
-        best, best_seeds = None, set()
-        for j, (start, _) in enumerate(left):
-            seeds = {sd for f, sd in left[j:] if f < start + window}
-            if len(seeds) > len(best_seeds):
-                best, best_seeds = start, seeds
-        if len(best_seeds) < need:
+        frames = [f for f, _ in left]
+        best, best_n = 0, 0
+        for j, start in enumerate(frames):
+            n = len({sd for _, sd in left[j:bisect_left(frames, start + window)]})
+            if n > best_n:
+                best, best_n = j, n
+        if best_n < need:
             break
-        took = [(f, sd) for f, sd in left if best <= f < best + window]
-        places.append((took[0][0], took[-1][0], len(best_seeds)))
-        left = [x for x in left if not best <= x[0] < best + window]
+        end = bisect_left(frames, frames[best] + window)
+        places.append((frames[best], frames[end - 1], best_n))
+        left = left[:best] + left[end:]
     return places
