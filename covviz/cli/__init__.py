@@ -99,7 +99,8 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s: %(message)s"
     )
     try:
-        check_ignored(args, given_options(build_parser, glued))  # an option that would do nothing: an error
+        # An option that would do nothing: an error. The parser is done with, so it is reused (and spent).
+        check_ignored(args, given_options(lambda: parser, glued))
         # SIGTERM stops a run as Ctrl-C does (results of the frames done, a valid recording),
         # with exit code 143; a second signal never cuts short the saving of the first.
         with stop_signals():

@@ -93,6 +93,8 @@ def given_options(build_parser, argv: list[str]) -> set[str]:
 
     Parses ``argv`` again with a parser whose defaults are all suppressed, so
     abbreviations and ``--opt=value`` count as given exactly as argparse reads them.
+    ``build_parser()`` may return a parser already used: it is changed for good
+    (every default suppressed), so give one that is not parsed with again.
     """
     parser = build_parser()
     stack = [parser]
