@@ -87,8 +87,8 @@ def describe_losses(boxes, groundtruth, found_iou: float = FOUND_IOU) -> list[Lo
 def recurring(losses_per_seed: dict, window: int = 10, min_share: float = 1 / 3) -> list[tuple[int, int, int]]:
     """Where the losses of many seeds of one sequence recur: ``[(first, last, seeds), ...]``, most seeds first.
 
-    ``losses_per_seed`` maps each seed to its run's losses (:class:`Loss`, or anything with a ``lost_at``, the
-    1-based frame of the loss). Greedily, the ``window`` frames
+    ``losses_per_seed`` maps each seed to its run's losses: :class:`Loss` objects, or the 1-based frames they
+    were lost at. Greedily, the ``window`` frames
     in which the most seeds lose the target (each seed counted once) are a place, ``first``–``last``
     being the earliest and latest of those losses; their losses are set aside and the next place is
     sought, while one holds at least ``min_share`` of the seeds (and at least two).
@@ -96,7 +96,7 @@ def recurring(losses_per_seed: dict, window: int = 10, min_share: float = 1 / 3)
     if window < 1:
         raise ValueError(f"window must be at least 1, got {window}")
     need = max(2, min_share * len(losses_per_seed))
-    left = sorted((ls.lost_at, seed) for seed, losses in losses_per_seed.items() for ls in losses)
+    left = sorted((int(getattr(ls, "lost_at", ls)), seed) for seed, losses in losses_per_seed.items() for ls in losses)
     places = []
     while left:
         frames = [f for f, _ in left]

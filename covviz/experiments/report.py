@@ -641,7 +641,7 @@ def recurring_losses(summary: Summary) -> dict[str, list[tuple]]:
         rows = []
         for seq in summary.sequences:
             runs = [r for r in rs if r.sequence == seq]
-            per_seed = {r.seed: [_Lost(lost) for _, lost in r.losses] for r in runs}
+            per_seed = {r.seed: [lost for _, lost in r.losses] for r in runs}
             for first, last, k in recurring(per_seed, RECUR_WINDOW, RECUR_SHARE):
                 verdicts, causes = Counter(), Counter()
                 for r in runs:
@@ -650,11 +650,6 @@ def recurring_losses(summary: Summary) -> dict[str, list[tuple]]:
                 rows.append((seq, first, last, k, len(runs), dict(verdicts), dict(causes)))
         out[t] = rows
     return out
-
-
-@dataclass(frozen=True)
-class _Lost:
-    lost_at: int
 
 
 def _recurring_section(summary: Summary) -> list[str]:
