@@ -7,7 +7,7 @@ import pytest
 
 from covviz.data.sequences import SyntheticConfig, SyntheticSequence
 from covviz.model.observation import box_to_pose
-from covviz.model.spd import distance_riemann, expm, logm, mean_riemann
+from covviz.model.spd import distance_riemann, expm, logm, spread_riemann
 from covviz.records import FrameRecord
 from covviz.trackers.manifold import ManifoldConfig, ManifoldTracker
 from covviz.viz.diagnostics import (
@@ -50,15 +50,36 @@ def test_background_poses_stay_in_the_frame_and_keep_their_slots():
     assert np.all(np.hypot(full[:, 0] - 50, full[:, 1] - 50) >= 10.0)
 
 
-def test_template_spread_matches_the_karcher_mean(rng):
-    A = rng.normal(scale=0.2, size=(30, 4, 4))
+@pytest.mark.parametrize("d", [4, 9])  # 9: the compiled kernel's path; 4: numpy's
+def test_template_spread_is_the_mean_distance_to_the_log_euclidean_mean(rng, d):
+    import scipy.linalg
+
+    A = rng.normal(scale=0.2, size=(30, d, d))
     L = A + A.transpose(0, 2, 1)
-    spread, M = template_spread(L, tol=1e-10)
-    M_ref = mean_riemann(expm(L), tol=1e-12)
-    np.testing.assert_allclose(M, M_ref, atol=1e-8)
-    assert spread == pytest.approx(float(distance_riemann(M_ref, expm(L)).mean()), rel=1e-6)
+    spread, M = template_spread(L)
+    M_ref = scipy.linalg.expm(L.mean(axis=0))
+    np.testing.assert_allclose(M, M_ref, rtol=1e-10, atol=1e-12)
+    # The distances from scipy's generalized eigenvalues, independently of covviz.model.
+    ref = np.mean([np.sqrt(np.sum(np.log(scipy.linalg.eigh(scipy.linalg.expm(x), M_ref, eigvals_only=True)) ** 2))
+                   for x in L])
+    assert spread == pytest.approx(ref, rel=1e-10)
     # Identical templates: no spread.
-    assert template_spread(np.repeat(L[:1], 5, axis=0))[0] == pytest.approx(0.0, abs=1e-9)
+    assert template_spread(np.repeat(L[:1], 5, axis=0))[0] == pytest.approx(0.0, abs=1e-7)
+
+
+def test_template_spread_agrees_with_the_karcher_spread_on_a_tight_cloud(rng):
+    # A tracker's cloud: small steps around one template (its spread ~0.1-0.4). There the
+    # log-Euclidean mean is the Karcher mean to second order, and the spreads agree closely.
+    A = rng.normal(scale=0.3, size=(9, 9))
+    B = rng.normal(scale=0.02, size=(64, 9, 9))
+    L = (A + A.T) / 2 + (B + B.transpose(0, 2, 1)) / 2
+    spread, M = template_spread(L)
+    karcher, K = spread_riemann(expm(L), tol=1e-12)
+    assert 0.05 < karcher < 0.5
+    assert spread == pytest.approx(karcher, rel=5e-3)
+    # The Karcher mean is the one nearest the cloud in the squared sense.
+    C = expm(L)
+    assert np.mean(distance_riemann(M, C) ** 2) >= np.mean(distance_riemann(K, C) ** 2) * (1 - 1e-12)
 
 
 def test_template_spread_subsamples_large_clouds(rng):
@@ -72,6 +93,8 @@ def test_template_spread_subsamples_large_clouds(rng):
 def test_template_spread_refuses_bad_shapes():
     with pytest.raises(ValueError, match="shape"):
         template_spread(np.zeros((0, 3, 3)))
+    with pytest.raises(ValueError, match="NaN"):
+        template_spread(np.full((3, 9, 9), np.nan))
 
 
 # --------------------------------------------------------------------------- #

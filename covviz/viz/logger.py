@@ -110,7 +110,7 @@ class LoggerConfig:
         column chunk costs ~1.3 KB of the file whatever it holds: sent every 10 frames, the series
         were a quarter of a Car4 recording.
     spread_every : int
-        The template-cloud spread (a Karcher mean) every this many frames.
+        The template-cloud spread (mean distance to the log-Euclidean mean) every this many frames.
     views_in_columns : bool
         The views drawn anew on every frame (the particles' regions, dots and centres, the heatmaps,
         the zoom patches) go out with the series, as columns (:class:`~covviz.viz.series.SeriesBuffer`):
@@ -220,7 +220,6 @@ class _TrackerState:
         self.mds = AlignedMDS(cfg.mds_method)
         # SMACOF for the cloud alone: classical MDS would flatten it (see covviz.embedding.embed).
         self.mds_zoom = AlignedMDS("smacof", max_iter=20)
-        self.spread_mean: np.ndarray | None = None
         self.index = index
         self.initial_template: np.ndarray | None = None
         self.initial_patch: np.ndarray | None = None
@@ -672,18 +671,15 @@ class RerunLogger(Observer):
         return o
 
     def _log_spread(self, s: _TrackerState, record: FrameRecord, i: int, problems: list) -> None:
-        """The template cloud's spread (mean distance to its Karcher mean)."""
+        """The template cloud's spread (mean distance to its log-Euclidean mean)."""
         cfg, p = self.config, s.paths
         templates = checked(record.templates, (-1, -1, -1), "templates", problems)
         if templates is not None and len(templates) and cfg.spread_every and i % cfg.spread_every == 0:
             try:
-                spread, s.spread_mean = template_spread(
-                    templates, init=s.spread_mean, max_templates=cfg.spread_templates
-                )
+                spread, _ = template_spread(templates, max_templates=cfg.spread_templates)
                 self.series.add(p.spread, spread)
             except (ValueError, np.linalg.LinAlgError) as exc:
                 problems.append(f"template spread failed ({exc})")
-                s.spread_mean = None
 
     def _log_heatmap(self, s: _TrackerState, record: FrameRecord, i: int, problems: list) -> np.ndarray | None:
         """The estimate's template, its observation and their difference as labelled heatmaps; returns the template.
