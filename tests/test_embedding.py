@@ -189,3 +189,32 @@ def test_distance_matrix_of_descriptors_is_pyriemanns(rng):
     for i, j in [(0, 1), (2, 3), (5, 22), (17, 4)]:
         assert D[i, j] == pytest.approx(pr_distance(C[i], C[j]), rel=1e-11, abs=1e-13)
     assert D[2, 3] == pytest.approx(np.sqrt(9) * np.log(1.0000001), rel=1e-6)
+
+
+def test_procrustes_is_scipys_orthogonal_procrustes(rng):
+    # Noisy points (no exact fit): the rotation is Schönemann's, as scipy.linalg computes it.
+    import scipy.linalg
+
+    X, ref = rng.normal(size=(20, 2)), rng.normal(size=(20, 2))
+    _, R, _ = procrustes_align(X, ref)
+    R_ref, _ = scipy.linalg.orthogonal_procrustes(X - X.mean(axis=0), ref - ref.mean(axis=0))
+    np.testing.assert_allclose(R, R_ref, atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [2, 3, 40])
+def test_classical_mds_takes_scipys_top_eigenpairs(rng, n):
+    # Riemannian (non-Euclidean) distances: the top two eigenpairs of the double-centred matrix,
+    # as scipy.linalg.eigh's partial solve gives them (signs fixed as classical_mds fixes them).
+    import scipy.linalg
+
+    A = rng.normal(scale=0.3, size=(n, 4, 4))
+    D = distance_matrix(expm(A + A.transpose(0, 2, 1)))
+    X = classical_mds(D)
+    D2 = D * D
+    r = D2.mean(axis=1)
+    B = -0.5 * (D2 - r[:, None] - r[None, :] + r.mean())
+    k = min(2, n)
+    w, V = scipy.linalg.eigh(B, subset_by_index=[n - k, n - 1])
+    ref = V[:, ::-1] * np.sqrt(np.clip(w[::-1], 0.0, None))
+    ref *= np.where(ref[np.abs(ref).argmax(axis=0), np.arange(k)] < 0, -1.0, 1.0)
+    np.testing.assert_allclose(X[:, :k], ref, atol=1e-10)
