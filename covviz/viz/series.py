@@ -28,6 +28,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pyarrow as pa
 import rerun as rr
 
 from covviz.viz import paths as P
@@ -174,7 +175,7 @@ class SeriesBuffer:
                 anys = {k[len(_ANY):]: cat.pop(k) for k in list(cat) if k.startswith(_ANY)}
                 cols = list(_ARCHETYPE[kind].columns(**cat).partition(lengths))
                 if anys:
-                    cols += list(rr.AnyValues.columns(**anys).partition(lengths))
+                    cols += list(rr.AnyValues.columns(**{k: _arrow(v) for k, v in anys.items()}).partition(lengths))
                 self.stream.send_columns(path, indexes=_indexes(fr, sec), columns=cols)
 
     def __len__(self) -> int:
@@ -198,6 +199,21 @@ def _any_fields(values: dict | None, n: int) -> dict:
             raise ValueError(f"value {k!r} has {len(a)} rows, the batch {n}")
         out[_ANY + k] = a
     return out
+
+
+def _arrow(a: np.ndarray):
+    """A numeric column as an Arrow array (pyarrow comes with rerun-sdk): Rerun then skips its per-value Python (it wraps each value of a
+    numpy column in a list of its own, ~0.16 ms per 1000 values, ~7% of the recorder's Python on Car4).
+    Floats as float64 and integers as int64, the types Rerun registers for them from numpy; anything
+    else is left to Rerun."""
+    kind = a.dtype.kind
+    if kind == "f":
+        return pa.array(a.astype(np.float64, copy=False))
+    if kind in "iu":
+        return pa.array(a.astype(np.int64, copy=False))
+    if kind == "b":
+        return pa.array(a)
+    return a
 
 
 def _same_shape(rows: list[dict], kind: str) -> list[list[int]]:
