@@ -673,8 +673,10 @@ class RerunLogger(Observer):
     def _log_spread(self, s: _TrackerState, record: FrameRecord, i: int, problems: list) -> None:
         """The template cloud's spread (mean distance to its log-Euclidean mean)."""
         cfg, p = self.config, s.paths
+        if not cfg.spread_every or i % cfg.spread_every:
+            return
         templates = checked(record.templates, (-1, -1, -1), "templates", problems)
-        if templates is not None and len(templates) and cfg.spread_every and i % cfg.spread_every == 0:
+        if templates is not None and len(templates):
             try:
                 spread, _ = template_spread(templates, max_templates=cfg.spread_templates)
                 self.series.add(p.spread, spread)
