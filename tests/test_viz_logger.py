@@ -307,6 +307,19 @@ def test_heatmaps_equal_the_records(run):
     np.testing.assert_array_equal(lo[:, 22:], hi[:, 22:])  # no difference: the same neutral colour
 
 
+def test_heatmap_colours_of_nan_and_inf_are_numpys_nan_to_num_then_clip():
+    """NaN shows as 0 and ±inf as the scale's ends, as np.clip(np.nan_to_num(v)) would give."""
+    from covviz.viz import why
+
+    rng = np.random.default_rng(0)
+    v = rng.normal(scale=2.0, size=(9, 9))
+    v[rng.random((9, 9)) < 0.1], v[0, :3], v[1, :3] = np.nan, np.inf, -np.inf
+    for lo, hi in ((0.0, 1.0), (-1.0, 1.0)):
+        np.testing.assert_array_equal(why._clip_nan0(v, lo, hi), np.clip(np.nan_to_num(v), lo, hi))
+    with np.errstate(invalid="ignore"):  # inf - inf in the difference panel: NaN, shown as 0
+        assert why.heatmap_image(v, v).shape == (9, 3 * 9 + 2 * 2, 3)
+
+
 def test_costly_diagnostics_only_on_their_frames(run):
     t = run["temporal"]
     p = P.TrackerPaths("manifold")

@@ -217,14 +217,21 @@ def zoom_image(patches: list[np.ndarray | None], gap: int = 2) -> np.ndarray:
     return np.concatenate(cols[:-1], axis=1)
 
 
+def _clip_nan0(v: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """``np.clip(np.nan_to_num(v), lo, hi)`` (NaN -> 0, ±inf -> the bounds) without nan_to_num's Python (~6 µs a call)."""
+    u = np.clip(v, lo, hi)
+    u[np.isnan(u)] = 0.0
+    return u
+
+
 def _viridis(v: np.ndarray) -> np.ndarray:
-    u = np.clip(np.nan_to_num(v), 0.0, 1.0)
+    u = _clip_nan0(v, 0.0, 1.0)
     return colormap_rgb((u * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
 
 
 def _diverging(v: np.ndarray) -> np.ndarray:
     """-1 .. 1 -> blue .. light grey .. red."""
-    u = np.clip(np.nan_to_num(v), -1.0, 1.0)[..., None]
+    u = _clip_nan0(v, -1.0, 1.0)[..., None]
     blue, mid, red = np.array([40, 90, 255.0]), np.array([225, 225, 225.0]), np.array([255, 60, 40.0])
     out = np.where(u < 0, mid + (blue - mid) * (-u), mid + (red - mid) * u)
     return out.astype(np.uint8)
