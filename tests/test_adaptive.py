@@ -163,3 +163,63 @@ def test_fast_motion_raises_the_evidence_and_redetection_particles_appear():
     ev = np.array([e for e, _ in seen])
     assert ev.max() > 0.5, "the leap should leave no particle explaining the frame"
     assert any(k > 0 for _, k in seen)
+
+
+# --------------------------------------------------------------------------- #
+# the observation pull
+# --------------------------------------------------------------------------- #
+def _sym(rng, n, scale=0.1):
+    A = rng.normal(scale=scale, size=(n, 9, 9))
+    return (A + A.transpose(0, 2, 1)) / 2
+
+
+def test_observation_pull_steps_every_template_along_the_log_euclidean_geodesic():
+    from covviz.model.adaptive import PullState, observation_pull
+
+    rng = np.random.default_rng(0)
+    L, obs, init = _sym(rng, 40), _sym(rng, 1)[0], _sym(rng, 1)[0]
+    out, st = observation_pull(L, obs, init, PullState(), 0.25, 2.0, 30)
+    np.testing.assert_allclose(out, 0.75 * L + 0.25 * obs, rtol=1e-12, atol=1e-15)
+    # each stays on the segment from its template to the observation, a quarter of the way
+    np.testing.assert_allclose(np.linalg.norm(out - L, axis=(1, 2)), 0.25 * np.linalg.norm(obs - L, axis=(1, 2)))
+    assert st.window == (pytest.approx(float(np.linalg.norm(obs - init))),)
+
+
+def test_observation_pull_gate_holds_a_sudden_change_and_the_window_keeps_its_length():
+    from covviz.model.adaptive import PULL_WARMUP, PullState, observation_pull
+
+    rng = np.random.default_rng(1)
+    L, init = _sym(rng, 5), np.zeros((9, 9))
+    st = PullState()
+    for _ in range(PULL_WARMUP + 5):  # a steady look: always stepped
+        obs = 0.2 * np.eye(9) + _sym(rng, 1, 0.01)[0]
+        out, st = observation_pull(L, obs, init, st, 0.1, 2.0, 12)
+        assert out is not None
+    assert len(st.window) == 12
+    jump = 0.2 * np.eye(9) + 0.5 * np.ones((9, 9))  # a shadow: far from the initial look all at once
+    out, st2 = observation_pull(L, jump, init, st, 0.1, 2.0, 12)
+    assert out is None and len(st2.window) == 12 and st2.window[-1] == pytest.approx(np.linalg.norm(jump))
+    out, _ = observation_pull(L, jump, init, st, 0.1, 0.0, 12)  # gate 0: no gate
+    assert out is not None
+
+
+def test_observation_pull_off_by_default_and_in_the_paper_variant_and_replays_bit_for_bit():
+    seq = SyntheticSequence()
+    cfg = ManifoldConfig(n_particles=60)
+    assert cfg.observation_pull == 0.0
+    assert cfg.replace(observation_pull=0.05).replace(**PAPER_LIKELIHOOD).observation_pull == 0.0
+    on = cfg.replace(observation_pull=0.05)
+    assert ManifoldConfig.from_dict(on.as_dict()) == on
+    b_off, tr_off = _run(cfg, seq, 12)
+    assert tr_off.pull is None
+    with ManifoldTracker(on, rng=0) as tr:
+        tr.init(seq.frame(0).image, seq.init_box)
+        for i in range(1, 6):
+            tr.update(seq.frame(i).image)
+        assert len(tr.pull.window) == 5  # a frame without evidence takes a step
+        state = tr.snapshot()
+        a = [tr.update(seq.frame(i).image) for i in range(6, 12)]
+        tr.restore(state)
+        b = [tr.update(seq.frame(i).image) for i in range(6, 12)]
+    assert np.array_equal(np.array(a), np.array(b))
+    assert not np.array_equal(np.array(a), b_off[5:])  # it does change the track

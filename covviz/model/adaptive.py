@@ -39,6 +39,26 @@ What it drives (frame ``t + 1``, every particle):
 With ``enabled=False`` (``manifold-paper``) nothing here runs and no random number is
 drawn: its boxes are those of the constant noise, bit for bit. Enabled, a frame after
 one with ``e = 0`` draws exactly what the constant noise draws.
+
+**The observation pull** (:func:`observation_pull`; ``ManifoldConfig.observation_pull``,
+off by default and in ``manifold-paper``). The template walk lets the likelihood choose
+among random steps; it never steps *towards* what the tracker sees, so a target whose
+look changes steadily (a surfer in spray, a car turning and shrinking) is followed only
+as fast as selection among random steps allows. With the pull, on a frame whose evidence
+is 0, after resampling, every particle's log-template takes a step of length ``α`` along
+the log-Euclidean geodesic towards the observation at the estimate:
+
+    L_i ← L_i + α · (log C_obs − L_i),     C_obs = the descriptor at (x, y, κ·s, θ)
+
+where ``(x, y, s, θ)`` is the estimate's pose and ``κ < 1`` takes the box's inner part:
+an observation of the whole box teaches the templates the background at its border once
+the box is a little loose, and the box then grows (Car1). The step is skipped where the
+look has changed suddenly: ``d_t = ‖log C_obs − L_0‖_F`` (the log-Euclidean distance to
+the initial template) has a robust z-score (as above, against its last ``W`` values, once
+there are :data:`PULL_WARMUP`) above the gate ``g`` — a shadow or an occluder should not
+become the template. The window takes every ``d_t``, so a lasting change is followed
+after about ``W/2`` frames. No random number is drawn: with ``α = 0`` the tracker is the
+one without the pull, bit for bit.
 """
 
 from __future__ import annotations
@@ -52,8 +72,8 @@ from covviz.config import ConfigError, Spec, check, from_mapping
 from covviz.model.dynamics import SCALE, THETA, VX, VY, KinematicModel, X, Y
 from covviz.model.stats import median
 
-__all__ = ["ADAPTIVE_SPECS", "AdaptState", "AdaptiveDiffusion", "adapted_kinematics", "evidence", "redetect",
-           "robust_z"]
+__all__ = ["ADAPTIVE_SPECS", "PULL_WARMUP", "AdaptState", "AdaptiveDiffusion", "PullState", "adapted_kinematics",
+           "evidence", "observation_pull", "redetect", "robust_z"]
 
 
 @dataclass(frozen=True)
@@ -174,6 +194,48 @@ def robust_z(x: float, window) -> tuple[float, float, float]:
     s = 1.4826 * float(median(np.abs(win - m)))
     scale = s + 1e-3 * max(abs(m), 1e-3)
     return (x - m) / scale, m, scale
+
+
+#: Values of the observation pull's window before its gate acts.
+PULL_WARMUP = 10
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class PullState:
+    """The observation pull's memory (part of the tracker's snapshot): the last distances ``d_t`` of the
+    observation to the initial template, oldest first (module docstring)."""
+
+    window: tuple = ()
+
+
+def observation_pull(templates: np.ndarray, observed_log: np.ndarray, initial_log: np.ndarray, state: PullState,
+                     rate: float, gate: float, window: int) -> tuple[np.ndarray | None, PullState]:
+    """One frame of the observation pull (module docstring): the stepped templates, or None where the gate
+    holds them, and the next state.
+
+    Parameters
+    ----------
+    templates : ndarray, shape (n, d, d)
+        The particles' log-templates after resampling.
+    observed_log : ndarray, shape (d, d)
+        ``log C_obs``, the observation at the estimate's inner region.
+    initial_log : ndarray, shape (d, d)
+        ``L_0``, the initial template.
+    state : PullState
+    rate, gate : float
+        ``α`` and ``g`` (``g = 0``: no gate).
+    window : int
+        ``W``.
+    """
+    d = float(np.linalg.norm(observed_log - initial_log))
+    held = False
+    if gate > 0 and len(state.window) >= PULL_WARMUP:
+        z, _, _ = robust_z(d, state.window)
+        held = z > gate
+    nxt = PullState((*state.window, d)[-window:])
+    if held:
+        return None, nxt
+    return templates + rate * (observed_log - templates), nxt
 
 
 def evidence(state: AdaptState, best: float, pose, template, cfg: AdaptiveDiffusion) -> AdaptState:

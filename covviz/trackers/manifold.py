@@ -65,7 +65,14 @@ import numpy as np
 
 from covviz.config import ConfigError, Spec, as_plain, check, from_mapping
 from covviz.model import fgbg, refine
-from covviz.model.adaptive import AdaptiveDiffusion, AdaptState, adapted_kinematics, redetect
+from covviz.model.adaptive import (
+    AdaptiveDiffusion,
+    AdaptState,
+    PullState,
+    adapted_kinematics,
+    observation_pull,
+    redetect,
+)
 from covviz.model.adaptive import evidence as adapt_evidence
 from covviz.model.dynamics import (
     POSE,
@@ -227,6 +234,19 @@ class ManifoldConfig:
         own estimate, so the step cannot lead it astray. 0: off (always in
         ``manifold-paper``); the default 0.02 was chosen on half the dev set
         and confirmed on the other half and on fresh seeds (docs/tuning.md).
+    observation_pull : float
+        ``α`` of the observation pull (:mod:`covviz.model.adaptive`, "the observation pull"):
+        on a frame without loss evidence, every particle's log-template steps this far along
+        the log-Euclidean geodesic towards the observation at the estimate's inner region,
+        unless that observation's look changed suddenly. 0: off (the default, and always in
+        ``manifold-paper``); docs/tuning.md has what it does on the dev set and why it is off.
+    observation_pull_scale : float
+        ``κ``: the observation is taken at the estimate's scale times this (its inner part).
+    observation_pull_gate : float
+        ``g``: no step when the observation's distance to the initial template has a robust
+        z-score above this; 0: no gate.
+    observation_pull_window : int
+        ``W``: the frames of that z-score's window.
     """
 
     n_particles: int = 600
@@ -257,6 +277,10 @@ class ManifoldConfig:
     flow_share: float = 0.0
     camera_share: float = 0.0
     ncc_rate: float = 0.02
+    observation_pull: float = 0.0
+    observation_pull_scale: float = 0.9
+    observation_pull_gate: float = 2.0
+    observation_pull_window: int = 30
 
     def __post_init__(self):
         check(self, MANIFOLD_SPECS)
@@ -333,6 +357,10 @@ MANIFOLD_SPECS: dict[str, Spec] = {
     "flow_share": Spec("float", 0, 1),
     "camera_share": Spec("float", 0, 1),
     "ncc_rate": Spec("float", 0, 1),
+    "observation_pull": Spec("float", 0, 1),
+    "observation_pull_scale": Spec("float", 0.1, 1.5),
+    "observation_pull_gate": Spec("float", 0),
+    "observation_pull_window": Spec("int", 3, 100_000),
 }
 
 #: Top-level fields added to (or removed from) the config after results were first saved, each with the
@@ -340,7 +368,10 @@ MANIFOLD_SPECS: dict[str, Spec] = {
 #: ``ncc_rate`` 0 is bit for bit the tracker before the position step, ``flow_guard`` 0 the tracker after
 #: the guard's removal, ``camera_share`` 0 the tracker before the moving-camera proposal). A saved config that lacks such a field, or holds it at this value, is the same
 #: config as one without it: ``covviz bench`` keeps those results instead of refusing the folder.
-NEUTRAL_FIELDS: dict[str, float] = {"ncc_rate": 0.0, "flow_guard": 0.0, "camera_share": 0.0}
+NEUTRAL_FIELDS: dict[str, float] = {"ncc_rate": 0.0, "flow_guard": 0.0, "camera_share": 0.0, "observation_pull": 0.0,
+                                    # the pull's own settings, which change nothing while it is off
+                                    "observation_pull_scale": 0.9, "observation_pull_gate": 2.0,
+                                    "observation_pull_window": 30}
 
 
 # --------------------------------------------------------------------------- #
@@ -479,6 +510,7 @@ class ManifoldTracker:
         self.flow: FlowState | None = None
         self.camera: CameraState | None = None
         self.ncc: NccState | None = None
+        self.pull: PullState | None = None
         self.last_record: FrameRecord | None = None
         #: An experiment's hand in update() (covviz.diagnosis.counterfactual); None in normal runs.
         self.intervention: Intervention | None = None
@@ -552,6 +584,7 @@ class ManifoldTracker:
             index=self._index,
             ncc=self.ncc,
             camera=self.camera,
+            pull=self.pull,
         )
 
     def restore(self, state: ManifoldState) -> None:
@@ -572,6 +605,7 @@ class ManifoldTracker:
         self.flow = state.flow
         self.camera = state.camera
         self.ncc = state.ncc
+        self.pull = state.pull
         self.rng.bit_generator.state = copy.deepcopy(state.rng_state)
         self._index = state.index
         self.last_record = None
@@ -603,6 +637,7 @@ class ManifoldTracker:
         self.adapt = AdaptState.start(pose[0], L0) if cfg.adaptive.enabled else None
         self.flow = FlowState(_ro(gray8(frame), np.uint8), _ro(b)) if cfg.flow_share > 0 else None
         self.camera = CameraState(*camera_frame(frame), _ro(b)) if cfg.camera_share > 0 else None
+        self.pull = PullState() if cfg.observation_pull > 0 else None
         self.ncc = None
         if cfg.ncc_rate > 0:
             size = (max(4, round(w)), max(4, round(h)))
@@ -891,6 +926,19 @@ class ManifoldTracker:
             res = systematic_resample if cfg.resampling == "systematic" else multinomial_resample
             idx = res(lw, self.rng)
             new = new.take(idx)
+        if self.pull is not None and (self.adapt is None or self.adapt.evidence == 0.0):
+            # 6. the observation pull (covviz.model.adaptive): the templates step towards what the estimate sees
+            obs = est_desc
+            if cfg.observation_pull_scale != 1.0:
+                inner = np.array(est_pose, dtype=np.float64)
+                inner[2] *= cfg.observation_pull_scale
+                obs = self._observe(gray, inner[None]).descriptors[0]
+            stepped, self.pull = observation_pull(
+                new.templates, logm(obs), self.initial_template, self.pull, cfg.observation_pull,
+                cfg.observation_pull_gate, cfg.observation_pull_window,
+            )
+            if stepped is not None:
+                new = ParticleSet(new.states, stepped, new.log_weights)
         self.particles = new
         t5 = time.perf_counter()
         tm["resample"] = t5 - t4
@@ -1000,6 +1048,8 @@ class ManifoldState:
         The motion prior's last frame and box (None when off).
     camera : CameraState or None
         The moving-camera proposal's last (downscaled) frame and box (None when off).
+    pull : PullState or None
+        The observation pull's window (None when off).
     rng_state : dict
         The bit generator's state (``Generator.bit_generator.state``).
     index : int
@@ -1019,6 +1069,7 @@ class ManifoldState:
     index: int
     ncc: NccState | None = None
     camera: CameraState | None = None
+    pull: PullState | None = None
 
 
 def _ro(a: np.ndarray, dtype=np.float64) -> np.ndarray:
@@ -1095,6 +1146,7 @@ PAPER_LIKELIHOOD = {
     "flow_share": 0.0,
     "camera_share": 0.0,
     "ncc_rate": 0.0,
+    "observation_pull": 0.0,
 }
 #: The derivative normalisation and the colour term off, the quadrant term (and the adaptive diffusion and the
 #: reported box's position step) kept: the likelihood of before issue 14 on today's dynamics (for ablations
