@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from covviz.model.observation import ObservationModel
-from covviz.model.spd import distance_riemann, expm, expm_taylor
+from covviz.model.spd import distance_riemann_log, expm
 from covviz.records import FrameRecord
 
 __all__ = [
@@ -222,10 +222,12 @@ def template_spread(templates_log: np.ndarray, max_templates: int = 64) -> tuple
     mean = expm(L.mean(axis=0))
     from covviz.model import kernels
 
+    # d(expm(L_i), mean) as the tracker computes its template distances
+    # (ObservationModel._template_distances): the compiled kernel, else spd's log-space distance.
     if kernels.JIT_ENABLED and L.shape[1:] == (9, 9):
         d = kernels.template_distances_fast(L, np.broadcast_to(mean, L.shape))
     else:
-        d = distance_riemann(mean, expm_taylor(L))
+        d = distance_riemann_log(L, mean)
     return float(d.mean()), mean
 
 
