@@ -203,6 +203,49 @@ def test_observation_pull_gate_holds_a_sudden_change_and_the_window_keeps_its_le
     assert out is not None
 
 
+def test_box_brightness_is_the_mean_grey_level_of_the_box_in_the_models_frame():
+    from covviz.model.adaptive import box_brightness
+
+    gray = np.arange(20 * 30, dtype=np.float32).reshape(20, 30)
+    # corners truncated to whole pixels; the right and bottom edges' pixels included
+    assert box_brightness(gray, (2.7, 3.2, 4.0, 5.0)) == pytest.approx(float(gray[3:9, 2:7].mean()))
+    # a frame downsampled 2x: the box in its pixels
+    assert box_brightness(gray, (4.0, 6.0, 8.0, 10.0), step=2) == pytest.approx(float(gray[3:9, 2:7].mean()))
+    # clipped to the frame; nothing inside: NaN
+    assert box_brightness(gray, (-5.0, -5.0, 8.0, 8.0)) == pytest.approx(float(gray[0:4, 0:4].mean()))
+    assert np.isnan(box_brightness(gray, (40.0, 2.0, 5.0, 5.0)))
+
+
+def test_observation_pull_light_gate_holds_a_change_of_light_either_way_and_keeps_the_look_from_before():
+    from covviz.model.adaptive import PULL_WARMUP, PullState, observation_pull
+
+    rng = np.random.default_rng(2)
+    L, init = _sym(rng, 5), np.zeros((9, 9))
+    obs = 0.2 * np.eye(9)  # the descriptor does not move: the gain-normalised look of a shadowed target
+    st = PullState()
+    for k in range(PULL_WARMUP + 5):
+        out, st = observation_pull(L, obs, init, st, 0.1, 2.0, 12, 0.5 + 0.01 * rng.standard_normal(), 2.5)
+        assert out is not None
+    assert len(st.light) == 12
+    for level in (0.2, 0.9):  # darker, brighter
+        out, st2 = observation_pull(L, obs, init, st, 0.1, 2.0, 12, level, 2.5)
+        assert out is None
+        assert st2.light == st.light  # a held level does not become the norm ...
+        assert len(st2.window) == 12 and st2.window[-1] == pytest.approx(np.linalg.norm(obs))
+    st3 = st
+    for _ in range(40):  # ... however long it lasts: the pull waits for the light to come back
+        out, st3 = observation_pull(L, obs, init, st3, 0.1, 2.0, 12, 0.2, 2.5)
+        assert out is None
+    out, _ = observation_pull(L, obs, init, st3, 0.1, 2.0, 12, 0.5, 2.5)
+    assert out is not None
+    # no light gate, or no level: the pull without it, bit for bit, and the level is not remembered
+    plain, sp = observation_pull(L, obs, init, st, 0.1, 2.0, 12)
+    for args in ((0.2, 0.0), (float("nan"), 2.5)):
+        out, s2 = observation_pull(L, obs, init, st, 0.1, 2.0, 12, *args)
+        assert np.array_equal(out, plain) and s2.window == sp.window
+    assert observation_pull(L, obs, init, st, 0.1, 2.0, 12, float("nan"), 2.5)[1].light == st.light
+
+
 def test_observation_pull_off_by_default_and_in_the_paper_variant_and_replays_bit_for_bit():
     seq = SyntheticSequence()
     cfg = ManifoldConfig(n_particles=60)
@@ -217,6 +260,7 @@ def test_observation_pull_off_by_default_and_in_the_paper_variant_and_replays_bi
         for i in range(1, 6):
             tr.update(seq.frame(i).image)
         assert len(tr.pull.window) == 5  # a frame without evidence takes a step
+        assert len(tr.pull.light) == 5  # and its box's grey level is remembered (the light gate is on)
         state = tr.snapshot()
         a = [tr.update(seq.frame(i).image) for i in range(6, 12)]
         tr.restore(state)

@@ -57,8 +57,21 @@ look has changed suddenly: ``d_t = ‖log C_obs − L_0‖_F`` (the log-Euclidea
 the initial template) has a robust z-score (as above, against its last ``W`` values, once
 there are :data:`PULL_WARMUP`) above the gate ``g`` — a shadow or an occluder should not
 become the template. The window takes every ``d_t``, so a lasting change is followed
-after about ``W/2`` frames. No random number is drawn: with ``α = 0`` the tracker is the
-one without the pull, bit for bit.
+after about ``W/2`` frames.
+
+The descriptor is gain-normalised, so a shadow hardly moves ``d_t`` (through Car4's bridge
+shadow that gate held 8 of 46 frames, and the templates learnt the car in the dark). The
+*light gate* looks at what gain normalisation hides: ``b_t``, the mean grey level of the
+estimate's box (:func:`box_brightness`). The step is also skipped when
+
+    |b_t − median(B_t)| / scale(B_t) > g_b      (the robust z-score above, two-sided)
+
+against ``B_t``, the last ``W`` values of ``b`` on frames whose step this gate let through
+(once there are :data:`PULL_WARMUP`). A held value does not enter ``B_t``: the templates
+keep the look from before the light changed for as long as it stays changed, and the
+tracker is then the one without the pull (Car4's shadow exit: 17 losses over fifteen
+seeds without the gate, 0 with it; docs/tuning.md). No random number is drawn: with
+``α = 0`` the tracker is the one without the pull, bit for bit.
 """
 
 from __future__ import annotations
@@ -73,7 +86,7 @@ from covviz.model.dynamics import SCALE, THETA, VX, VY, KinematicModel, X, Y
 from covviz.model.stats import median
 
 __all__ = ["ADAPTIVE_SPECS", "PULL_WARMUP", "AdaptState", "AdaptiveDiffusion", "PullState", "adapted_kinematics",
-           "evidence", "observation_pull", "redetect", "robust_z"]
+           "box_brightness", "evidence", "observation_pull", "redetect", "robust_z"]
 
 
 @dataclass(frozen=True)
@@ -202,15 +215,33 @@ PULL_WARMUP = 10
 
 @dataclass(frozen=True, slots=True, eq=False)
 class PullState:
-    """The observation pull's memory (part of the tracker's snapshot): the last distances ``d_t`` of the
-    observation to the initial template, oldest first (module docstring)."""
+    """The observation pull's memory (part of the tracker's snapshot), oldest first (module docstring):
+    ``window``, the last distances ``d_t`` of the observation to the initial template; ``light``, the last
+    brightnesses ``b_t`` the light gate let through."""
 
     window: tuple = ()
+    light: tuple = ()
+
+
+def box_brightness(gray: np.ndarray, box, step: float = 1.0) -> float:
+    """``b_t`` of the light gate: the mean grey level of ``box`` (x, y, w, h in frame pixels) in ``gray``.
+
+    ``gray`` is the observation model's frame, downsampled ``step`` times (the box is divided by
+    ``max(step, 1)``); the box's corners are truncated to whole pixels and clipped to the frame.
+    NaN when nothing of the box is inside.
+    """
+    b = np.asarray(box, dtype=np.float64) / max(float(step), 1.0)
+    x0, y0 = max(int(b[0]), 0), max(int(b[1]), 0)
+    x1, y1 = min(int(b[0] + b[2]) + 1, gray.shape[1]), min(int(b[1] + b[3]) + 1, gray.shape[0])
+    if x1 <= x0 or y1 <= y0:
+        return float("nan")
+    return float(gray[y0:y1, x0:x1].mean())
 
 
 def observation_pull(templates: np.ndarray, observed_log: np.ndarray, initial_log: np.ndarray, state: PullState,
-                     rate: float, gate: float, window: int) -> tuple[np.ndarray | None, PullState]:
-    """One frame of the observation pull (module docstring): the stepped templates, or None where the gate
+                     rate: float, gate: float, window: int, brightness: float = float("nan"),
+                     light_gate: float = 0.0) -> tuple[np.ndarray | None, PullState]:
+    """One frame of the observation pull (module docstring): the stepped templates, or None where a gate
     holds them, and the next state.
 
     Parameters
@@ -225,15 +256,24 @@ def observation_pull(templates: np.ndarray, observed_log: np.ndarray, initial_lo
     rate, gate : float
         ``α`` and ``g`` (``g = 0``: no gate).
     window : int
-        ``W``.
+        ``W`` (of both gates' windows).
+    brightness : float
+        ``b_t`` (:func:`box_brightness`); NaN: the light gate neither holds nor remembers this frame.
+    light_gate : float
+        ``g_b`` (0: no light gate).
     """
     d = float(np.linalg.norm(observed_log - initial_log))
     held = False
     if gate > 0 and len(state.window) >= PULL_WARMUP:
         z, _, _ = robust_z(d, state.window)
         held = z > gate
-    nxt = PullState((*state.window, d)[-window:])
-    if held:
+    dark = False
+    if light_gate > 0 and len(state.light) >= PULL_WARMUP and np.isfinite(brightness):
+        zb, _, _ = robust_z(brightness, state.light)
+        dark = abs(zb) > light_gate
+    light = (*state.light, float(brightness))[-window:] if (np.isfinite(brightness) and not dark) else state.light
+    nxt = PullState((*state.window, d)[-window:], light)
+    if held or dark:
         return None, nxt
     return templates + rate * (observed_log - templates), nxt
 

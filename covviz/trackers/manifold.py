@@ -70,6 +70,7 @@ from covviz.model.adaptive import (
     AdaptState,
     PullState,
     adapted_kinematics,
+    box_brightness,
     observation_pull,
     redetect,
 )
@@ -246,7 +247,11 @@ class ManifoldConfig:
         ``g``: no step when the observation's distance to the initial template has a robust
         z-score above this; 0: no gate.
     observation_pull_window : int
-        ``W``: the frames of that z-score's window.
+        ``W``: the frames of that z-score's window (and of the light gate's).
+    observation_pull_light_gate : float
+        ``g_b``: no step either when the mean grey level of the estimate's box has a robust
+        z-score beyond ±this against the last ``W`` levels the gate let through (a shadow, a
+        light turned on: gain normalisation hides them from ``g``'s distance); 0: no light gate.
     """
 
     n_particles: int = 600
@@ -281,6 +286,7 @@ class ManifoldConfig:
     observation_pull_scale: float = 0.9
     observation_pull_gate: float = 2.0
     observation_pull_window: int = 30
+    observation_pull_light_gate: float = 2.5
 
     def __post_init__(self):
         check(self, MANIFOLD_SPECS)
@@ -361,6 +367,7 @@ MANIFOLD_SPECS: dict[str, Spec] = {
     "observation_pull_scale": Spec("float", 0.1, 1.5),
     "observation_pull_gate": Spec("float", 0),
     "observation_pull_window": Spec("int", 3, 100_000),
+    "observation_pull_light_gate": Spec("float", 0),
 }
 
 #: Top-level fields added to (or removed from) the config after results were first saved, each with the
@@ -371,7 +378,7 @@ MANIFOLD_SPECS: dict[str, Spec] = {
 NEUTRAL_FIELDS: dict[str, float] = {"ncc_rate": 0.0, "flow_guard": 0.0, "camera_share": 0.0, "observation_pull": 0.0,
                                     # the pull's own settings, which change nothing while it is off
                                     "observation_pull_scale": 0.9, "observation_pull_gate": 2.0,
-                                    "observation_pull_window": 30}
+                                    "observation_pull_window": 30, "observation_pull_light_gate": 2.5}
 
 
 # --------------------------------------------------------------------------- #
@@ -933,9 +940,13 @@ class ManifoldTracker:
                 inner = np.array(est_pose, dtype=np.float64)
                 inner[2] *= cfg.observation_pull_scale
                 obs = self._observe(gray, inner[None]).descriptors[0]
+            light = float("nan")
+            if cfg.observation_pull_light_gate > 0:
+                light = box_brightness(gray, pose_to_box(np.asarray(est_pose, dtype=np.float64)[None],
+                                                         model.base_wh)[0], model.step)
             stepped, self.pull = observation_pull(
                 new.templates, logm(obs), self.initial_template, self.pull, cfg.observation_pull,
-                cfg.observation_pull_gate, cfg.observation_pull_window,
+                cfg.observation_pull_gate, cfg.observation_pull_window, light, cfg.observation_pull_light_gate,
             )
             if stepped is not None:
                 new = ParticleSet(new.states, stepped, new.log_weights)
