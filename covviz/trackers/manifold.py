@@ -239,8 +239,11 @@ class ManifoldConfig:
         ``α`` of the observation pull (:mod:`covviz.model.adaptive`, "the observation pull"):
         on a frame without loss evidence, every particle's log-template steps this far along
         the log-Euclidean geodesic towards the observation at the estimate's inner region,
-        unless that observation's look changed suddenly. 0: off (the default, and always in
-        ``manifold-paper``); docs/tuning.md has what it does on the dev set and why it is off.
+        unless that observation's look or its light changed suddenly. 0: off (the default, and
+        always in ``manifold-paper``). With its light gate, 0.05 scored +0.032 [+0.014, +0.052] over
+        the default on the dev set's thirty seeds, fifteen of them fresh (docs/tuning.md): the
+        candidate default, off until the results, the drift detector and the counterfactual table
+        are re-made with it.
     observation_pull_scale : float
         ``κ``: the observation is taken at the estimate's scale times this (its inner part).
     observation_pull_gate : float
