@@ -214,6 +214,8 @@ def test_box_brightness_is_the_mean_grey_level_of_the_box_in_the_models_frame():
     # clipped to the frame; nothing inside: NaN
     assert box_brightness(gray, (-5.0, -5.0, 8.0, 8.0)) == pytest.approx(float(gray[0:4, 0:4].mean()))
     assert np.isnan(box_brightness(gray, (40.0, 2.0, 5.0, 5.0)))
+    assert np.isnan(box_brightness(gray, (np.nan, 2.0, 5.0, 5.0)))
+    assert np.isnan(box_brightness(gray, (2.0, 2.0, np.inf, 5.0)))
 
 
 def test_observation_pull_light_gate_holds_a_change_of_light_either_way_and_keeps_the_look_from_before():

@@ -228,9 +228,11 @@ def box_brightness(gray: np.ndarray, box, step: float = 1.0) -> float:
 
     ``gray`` is the observation model's frame, downsampled ``step`` times (the box is divided by
     ``max(step, 1)``); the box's corners are truncated to whole pixels and clipped to the frame.
-    NaN when nothing of the box is inside.
+    NaN when nothing of the box is inside, or the box is not finite.
     """
     b = np.asarray(box, dtype=np.float64) / max(float(step), 1.0)
+    if not np.all(np.isfinite(b)):
+        return float("nan")
     x0, y0 = max(int(b[0]), 0), max(int(b[1]), 0)
     x1, y1 = min(int(b[0] + b[2]) + 1, gray.shape[1]), min(int(b[1] + b[3]) + 1, gray.shape[0])
     if x1 <= x0 or y1 <= y0:
