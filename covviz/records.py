@@ -36,7 +36,8 @@ if TYPE_CHECKING:  # the types of the online state; records import nothing of th
     from covviz.model.fgbg import ColourMap, ColourModel
     from covviz.model.observation import QuadrantState
 
-__all__ = ["STAGES", "Diffusion", "FrameInputs", "FrameRecord", "Likelihood", "PoseSearch", "RunResult", "frame_number"]
+__all__ = ["STAGES", "Diffusion", "FrameInputs", "FrameRecord", "Likelihood", "PoseSearch", "Pull", "RunResult",
+           "frame_number"]
 
 def frame_number(index: int) -> int:
     """The 1-based frame number users see for a 0-based frame index."""
@@ -165,6 +166,32 @@ class Diffusion:
 
 
 @dataclass(frozen=True, slots=True, eq=False)
+class Pull:
+    """The observation pull on a frame (:mod:`covviz.model.adaptive`; ``ManifoldConfig.observation_pull``).
+
+    The next particle set's templates are the record's ``templates`` taken by ``resample_indices``
+    and then, where ``target`` is given, stepped: ``T ← T + rate · (target − T)``.
+
+    Attributes
+    ----------
+    held : str
+        ``""``: every template stepped; ``"evidence"``: not considered (the frame had loss
+        evidence); ``"look"``, ``"light"`` or ``"look+light"``: the gate(s) that held the step.
+    rate : float
+        ``α``.
+    target : ndarray, shape (d, d), or None
+        ``log C_obs``, what the templates stepped towards (None when nothing stepped).
+    brightness : float
+        ``b_t``, the estimate box's mean grey level (nan without the light gate, or not considered).
+    """
+
+    held: str
+    rate: float
+    target: np.ndarray | None
+    brightness: float
+
+
+@dataclass(frozen=True, slots=True, eq=False)
 class FrameRecord:
     """What one tracker did on one frame.
 
@@ -219,6 +246,8 @@ class FrameRecord:
         The scale/rotation search at the estimate, when the config asks for one.
     diffusion : Diffusion, optional
         The adaptive diffusion's evidence and what it did, when the config has it on.
+    pull : Pull, optional
+        The observation pull's step or what held it, when the config has it on.
     filter_pose : ndarray, shape (4,), optional
         The filter's own MMSE estimate ``cx, cy, scale, theta`` (the weighted mean of
         ``particle_poses``), when the reported ``pose`` is not it: the position step of the
@@ -252,6 +281,7 @@ class FrameRecord:
     inputs: FrameInputs | None = None
     pose_search: PoseSearch | None = None
     diffusion: Diffusion | None = None
+    pull: Pull | None = None
     filter_pose: np.ndarray | None = None
     extras: dict[str, Any] = field(default_factory=dict)
 

@@ -199,6 +199,7 @@ def test_observation_pull_gate_holds_a_sudden_change_and_the_window_keeps_its_le
     jump = 0.2 * np.eye(9) + 0.5 * np.ones((9, 9))  # a shadow: far from the initial look all at once
     out, st2 = observation_pull(L, jump, init, st, 0.1, 2.0, 12)
     assert out is None and len(st2.window) == 12 and st2.window[-1] == pytest.approx(np.linalg.norm(jump))
+    assert st.held == "" and st2.held == "look"  # what held it, for the frame's record
     out, _ = observation_pull(L, jump, init, st, 0.1, 0.0, 12)  # gate 0: no gate
     assert out is not None
 
@@ -231,7 +232,7 @@ def test_observation_pull_light_gate_holds_a_change_of_light_either_way_and_keep
     assert len(st.light) == 12
     for level in (0.2, 0.9):  # darker, brighter
         out, st2 = observation_pull(L, obs, init, st, 0.1, 2.0, 12, level, 2.5)
-        assert out is None
+        assert out is None and st2.held == "light"
         assert st2.light == st.light  # a held level does not become the norm ...
         assert len(st2.window) == 12 and st2.window[-1] == pytest.approx(np.linalg.norm(obs))
     st3 = st

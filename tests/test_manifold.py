@@ -222,27 +222,34 @@ def check_record(rec: FrameRecord, tr: ManifoldTracker, index: int):
 
 
 def check_next_set(rec: FrameRecord, tr: ManifoldTracker):
-    """The particle set after the update is the record's weighed set, resampled by its indices."""
+    """The particle set after the update is the record's weighed set, resampled by its indices (and its
+    templates stepped by the observation pull where the record's ``pull`` says so)."""
     ps = tr.particles
     n = tr.config.n_particles
+    T = rec.templates
     if rec.resampled:
         idx = rec.resample_indices
         assert idx.shape == (n,) and idx.min() >= 0 and idx.max() < n
         np.testing.assert_array_equal(ps.states[:, [0, 1, 4, 5]], rec.particle_poses[idx])
-        np.testing.assert_array_equal(ps.templates, rec.templates[idx])
+        T = T[idx]
         np.testing.assert_allclose(ps.log_weights, -np.log(n))
     else:
         np.testing.assert_array_equal(ps.states[:, [0, 1, 4, 5]], rec.particle_poses)
-        np.testing.assert_array_equal(ps.templates, rec.templates)
         np.testing.assert_array_equal(ps.log_weights, rec.log_weights)
+    assert (rec.pull is None) == (tr.config.observation_pull == 0)
+    if rec.pull is not None and rec.pull.target is not None:
+        assert rec.pull.held == ""
+        T = T + rec.pull.rate * (rec.pull.target - T)
+    np.testing.assert_array_equal(ps.templates, T)
 
 
+@pytest.mark.parametrize("pull", [0.0, 0.05])
 @pytest.mark.parametrize("threshold", [0.0, 0.5, 1.0])
-def test_update_record_contract(synth, threshold):
+def test_update_record_contract(synth, threshold, pull):
     seq, frames = synth
-    tr = ManifoldTracker(ManifoldConfig(n_particles=48, resample_threshold=threshold), rng=1)
+    tr = ManifoldTracker(ManifoldConfig(n_particles=48, resample_threshold=threshold, observation_pull=pull), rng=1)
     tr.init(frames[0], seq.init_box)
-    resampled = []
+    resampled, stepped = [], []
     for i in range(1, 6):
         box = tr.update(frames[i])
         rec = tr.last_record
@@ -250,6 +257,8 @@ def test_update_record_contract(synth, threshold):
         check_record(rec, tr, i)
         check_next_set(rec, tr)
         resampled.append(rec.resampled)
+        stepped.append(rec.pull is not None and rec.pull.target is not None)
+    assert any(stepped) == (pull > 0)  # the pull's step is part of the contract checked above
     if threshold == 0.0:
         assert not any(resampled)  # ESS < 0 never holds
     if threshold == 1.0:

@@ -217,10 +217,12 @@ PULL_WARMUP = 10
 class PullState:
     """The observation pull's memory (part of the tracker's snapshot), oldest first (module docstring):
     ``window``, the last distances ``d_t`` of the observation to the initial template; ``light``, the last
-    brightnesses ``b_t`` the light gate let through."""
+    brightnesses ``b_t`` the light gate let through; ``held``, what held the last step (``""``: nothing,
+    ``"look"``, ``"light"`` or ``"look+light"``)."""
 
     window: tuple = ()
     light: tuple = ()
+    held: str = ""
 
 
 def box_brightness(gray: np.ndarray, box, step: float = 1.0) -> float:
@@ -274,7 +276,7 @@ def observation_pull(templates: np.ndarray, observed_log: np.ndarray, initial_lo
         zb, _, _ = robust_z(brightness, state.light)
         dark = abs(zb) > light_gate
     light = (*state.light, float(brightness))[-window:] if (np.isfinite(brightness) and not dark) else state.light
-    nxt = PullState((*state.window, d)[-window:], light)
+    nxt = PullState((*state.window, d)[-window:], light, "+".join(k for k, v in (("look", held), ("light", dark)) if v))
     if held or dark:
         return None, nxt
     return templates + rate * (observed_log - templates), nxt

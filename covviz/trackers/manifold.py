@@ -116,7 +116,7 @@ from covviz.model.particles import (
     systematic_resample,
 )
 from covviz.model.spd import logdet, logm
-from covviz.records import Diffusion, FrameInputs, FrameRecord, Likelihood, PoseSearch
+from covviz.records import Diffusion, FrameInputs, FrameRecord, Likelihood, PoseSearch, Pull
 from covviz.trackers.base import ESTIMATE_MASS, Intervention
 
 __all__ = ["MANIFOLD_SPECS", "ManifoldConfig", "ManifoldState", "ManifoldTracker"]
@@ -936,6 +936,7 @@ class ManifoldTracker:
             res = systematic_resample if cfg.resampling == "systematic" else multinomial_resample
             idx = res(lw, self.rng)
             new = new.take(idx)
+        pull_rec = None if self.pull is None else Pull("evidence", cfg.observation_pull, None, float("nan"))
         if self.pull is not None and (self.adapt is None or self.adapt.evidence == 0.0):
             # 6. the observation pull (covviz.model.adaptive): the templates step towards what the estimate sees
             obs = est_desc
@@ -947,10 +948,12 @@ class ManifoldTracker:
             if cfg.observation_pull_light_gate > 0:
                 light = box_brightness(gray, pose_to_box(np.asarray(est_pose, dtype=np.float64)[None],
                                                          model.base_wh)[0], model.step)
+            target = logm(obs)
             stepped, self.pull = observation_pull(
-                new.templates, logm(obs), self.initial_template, self.pull, cfg.observation_pull,
+                new.templates, target, self.initial_template, self.pull, cfg.observation_pull,
                 cfg.observation_pull_gate, cfg.observation_pull_window, light, cfg.observation_pull_light_gate,
             )
+            pull_rec = Pull(self.pull.held, cfg.observation_pull, None if stepped is None else _ro(target), light)
             if stepped is not None:
                 new = ParticleSet(new.states, stepped, new.log_weights)
         self.particles = new
@@ -987,6 +990,7 @@ class ManifoldTracker:
                 e, km.mode_probs[1], walk_factor, n_fresh, self.adapt.evidence,
                 self.adapt.z, self.adapt.lost,
             ),
+            pull=pull_rec,
             filter_pose=None if self.ncc is None else est_pose,
         )
         return box
