@@ -913,7 +913,7 @@ class ManifoldTracker:
         if adapt is not None:
             self.adapt = adapt_evidence(adapt, float(np.min(ob.likelihood_distances)), est_pose, est_template,
                                         cfg.adaptive)
-        box = pose_to_box(est_pose[None], model.base_wh)[0]
+        box = est_box = pose_to_box(est_pose[None], model.base_wh)[0]  # est_box: the filter's, after the ncc step too
         if colour_state is not None:
             self.colour = fgbg.update_colour_model(colour_state, frame, box, cfg.colour_rate)
         if cur8 is not None:
@@ -946,8 +946,7 @@ class ManifoldTracker:
                 obs = self._observe(gray, inner[None]).descriptors[0]
             light = float("nan")
             if cfg.observation_pull_light_gate > 0:
-                light = box_brightness(gray, pose_to_box(np.asarray(est_pose, dtype=np.float64)[None],
-                                                         model.base_wh)[0], model.step)
+                light = box_brightness(gray, est_box, model.step)
             target = logm(obs)
             stepped, self.pull = observation_pull(
                 new.templates, target, self.initial_template, self.pull, cfg.observation_pull,
