@@ -249,12 +249,12 @@ def test_observation_pull_light_gate_holds_a_change_of_light_either_way_and_keep
     assert observation_pull(L, obs, init, st, 0.1, 2.0, 12, float("nan"), 2.5)[1].light == st.light
 
 
-def test_observation_pull_off_by_default_and_in_the_paper_variant_and_replays_bit_for_bit():
+def test_observation_pull_on_by_default_off_in_the_paper_variant_and_replays_bit_for_bit():
     seq = SyntheticSequence()
-    cfg = ManifoldConfig(n_particles=60)
-    assert cfg.observation_pull == 0.0
-    assert cfg.replace(observation_pull=0.05).replace(**PAPER_LIKELIHOOD).observation_pull == 0.0
-    on = cfg.replace(observation_pull=0.05)
+    on = ManifoldConfig(n_particles=60)
+    assert on.observation_pull == 0.05 and on.observation_pull_light_gate == 2.5
+    assert on.replace(**PAPER_LIKELIHOOD).observation_pull == 0.0
+    cfg = on.replace(observation_pull=0.0)
     assert ManifoldConfig.from_dict(on.as_dict()) == on
     b_off, tr_off = _run(cfg, seq, 12)
     assert tr_off.pull is None

@@ -239,11 +239,10 @@ class ManifoldConfig:
         ``α`` of the observation pull (:mod:`covviz.model.adaptive`, "the observation pull"):
         on a frame without loss evidence, every particle's log-template steps this far along
         the log-Euclidean geodesic towards the observation at the estimate's inner region,
-        unless that observation's look or its light changed suddenly. 0: off (the default, and
-        always in ``manifold-paper``). With its light gate, 0.05 scored +0.032 [+0.014, +0.052] over
-        the default on the dev set's thirty seeds, fifteen of them fresh (docs/tuning.md): the
-        candidate default, off until the results, the drift detector and the counterfactual table
-        are re-made with it.
+        unless that observation's look or its light changed suddenly. 0: off (always in
+        ``manifold-paper``). The default 0.05, with its light gate, scored +0.032 [+0.014, +0.052]
+        over the tracker without it on the dev set's thirty seeds, fifteen of them fresh
+        (docs/tuning.md, "a light gate for the observation pull").
     observation_pull_scale : float
         ``κ``: the observation is taken at the estimate's scale times this (its inner part).
     observation_pull_gate : float
@@ -285,7 +284,7 @@ class ManifoldConfig:
     flow_share: float = 0.0
     camera_share: float = 0.0
     ncc_rate: float = 0.02
-    observation_pull: float = 0.0
+    observation_pull: float = 0.05
     observation_pull_scale: float = 0.9
     observation_pull_gate: float = 2.0
     observation_pull_window: int = 30
