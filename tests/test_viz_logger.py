@@ -232,6 +232,30 @@ def test_scalars_equal_the_records(run):
         assert redetected[f] == pytest.approx(rec.diffusion.redetected / N_PARTICLES)
 
 
+def test_pull_held_markers_are_the_records_held_frames(tmp_path):
+    """A marker at 0 on each frame the observation pull was held by that gate, and on no other."""
+    # The synthetic default with its light dip moved to frame 14 (after the pull's 10 warm-up frames).
+    seq = SyntheticSequence(SyntheticConfig(n_frames=26, fast_start=0, fast_end=0, illum_start=14, illum_end=40,
+                                            occl_start=0, occl_end=0))
+    path = tmp_path / "pull.rrd"
+    stream = new_recording()
+    attach_sinks(stream, save=path)
+    logger = RerunLogger(stream, LoggerConfig(mds_every=0, seed=0))
+    col = Collector()
+    run_many([ManifoldTracker(ManifoldConfig(n_particles=30), rng=3)], seq,
+             [col, Pipeline([Diagnoser(logger.config.diagnosis), logger])])
+    t, _ = read_recording(path)
+    p = P.TrackerPaths("manifold")
+    recs = [r[0] for r in col.records]
+    assert all(r.pull is not None for r in recs[1:])  # the pull is on by default
+    light = {i + 1 for i, r in enumerate(recs) if r.pull is not None and "light" in r.pull.held.split("+")}
+    assert light and min(light) > 14  # the dip holds it, and nothing before the dip does
+    for reason in ("light", "look"):
+        marks = scalar_series(t, p.pull_held(reason))
+        held = {i + 1 for i, r in enumerate(recs) if r.pull is not None and reason in r.pull.held.split("+")}
+        assert set(marks) == held and all(v == 0.0 for v in marks.values())
+
+
 def test_likelihood_terms_equal_the_records(run):
     """Each term of d_eff²: its weighted value on every top particle, its share and the weight it moved."""
     t = run["temporal"]

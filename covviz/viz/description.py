@@ -86,7 +86,9 @@ Thresholds: `config`, `diagnosis`.
   the estimate: the likelihood prefers the wrong place), **▲ search** failure (the truth would
   score better, but no particle reached it), **diamond estimate** failure (particles reached the
   better-scoring truth, the estimate is elsewhere).
-* **Weights**: ESS/N, max weight, survivors of resampling (dots: resampled).
+* **Weights**: ESS/N, max weight, survivors of resampling (dots: resampled), the loss evidence
+  and the re-detected share; markers along 0 where the observation pull was held by its light
+  gate (diamonds) or its look gate (squares): the templates did not learn that frame's look.
   The **Why off track** label carries, in the diagnosis of a loss, which part of the likelihood
   (descriptor, quadrants, colour) preferred the estimate's place to the truth's.
 * **Cloud**: min and weighted-mean `d(C, C*)`, the template **spread**, the target's **gap** to

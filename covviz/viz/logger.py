@@ -82,6 +82,9 @@ log = logging.getLogger("covviz.viz")
 FRAME_DRAW_ORDER = -20.0
 #: Draw order of the top particles' regions.
 TOP_DRAW_ORDER = 30.0
+#: What held the observation pull (``FrameRecord.pull.held``, one gate or ``look+light``) -> its marker on the
+#: weights plot. ``evidence`` has none: it is the loss evidence itself, on the same plot.
+PULL_HELD_MARKERS = {"light": "Diamond", "look": "Square"}
 #: Radius of the centre of the heaviest particle, pixels (radius ∝ sqrt(w / w_max)).
 CENTRE_RADIUS = 3.0
 #: Line radius of the particles' regions, and radius of the dots of the light ones (image pixels).
@@ -442,6 +445,14 @@ class RerunLogger(Observer):
                 )
             for path, (col, label) in lines.items():
                 rec.log(path, rr.SeriesLines(colors=[col], names=[label], widths=[1.5]), static=True)
+            if s.name in with_particles:
+                # The observation pull's held frames, a strip of markers along 0 (evidence holds show as the
+                # loss evidence itself): when the templates stopped learning the look, and which gate said so.
+                for reason, marker in PULL_HELD_MARKERS.items():
+                    rec.log(p.pull_held(reason),
+                            rr.SeriesPoints(colors=[s.series_colors[f"pull_{reason}"]],
+                                            names=[f"{s.prefix}pull held ({reason})"], markers=[marker],
+                                            marker_sizes=[2.0]), static=True)
             # Event markers in the tracker's colour, one shape per kind: several trackers on one plot
             # stay apart.
             for kind, marker in (("drift", "Cross"), ("lost", "Down"), ("recovered", "Up"), ("suspect", "Asterisk")):
@@ -628,6 +639,11 @@ class RerunLogger(Observer):
             if record.diffusion is not None:
                 self.series.add(p.loss_evidence, float(record.diffusion.evidence))
                 self.series.add(p.redetected, record.diffusion.redetected / n)
+            pull = getattr(record, "pull", None)
+            if pull is not None:
+                for reason in PULL_HELD_MARKERS:
+                    if reason in pull.held.split("+"):
+                        self.series.add(p.pull_held(reason), 0.0)
             if record.resampled:
                 self.series.add(p.resampled, ess / n)
                 idx = record.resample_indices

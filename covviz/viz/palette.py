@@ -59,6 +59,8 @@ SERIES_COLORS = {
     "spread": (200, 120, 255),
     "evidence": (255, 130, 0),
     "redetected": (0, 220, 220),
+    "pull_light": (255, 240, 120),
+    "pull_look": (200, 160, 255),
     "drift": (255, 60, 60),
     "lost": (255, 0, 0),
     "recovered": (40, 235, 90),

@@ -22,7 +22,8 @@ The entity tree::
     trackers/<name>/video/background LineStrips2D: regions sampled as background for the MDS picture
     trackers/<name>/video/replay/<fix> Boxes2D: a loss's counterfactual replay under each fix (faint)
     trackers/<name>/weights/...      Scalars: ess (ESS/N), max, survivors, loss_evidence (the adaptive diffusion's
-                                     e), redetected (share drawn afresh); SeriesPoints: resampled
+                                     e), redetected (share drawn afresh); SeriesPoints: resampled,
+                                     pull_held/<light|look> (at 0: the observation pull held by that gate)
     trackers/<name>/distance/...     Scalars: min, mean (weighted), spread (template cloud)
     trackers/<name>/metrics/...      Scalars: iou, center_error; SeriesPoints: drift, lost, recovered;
                                      replay/<fix>: IoU of each counterfactual replay
@@ -201,6 +202,10 @@ class TrackerPaths:
     @property
     def redetected(self) -> str:
         return f"{self.weights}/redetected"
+
+    def pull_held(self, reason: str) -> str:
+        """SeriesPoints at 0 on the frames the observation pull was held by ``reason`` (``light``, ``look``)."""
+        return f"{self.weights}/pull_held/{reason}"
 
     @property
     def resampled(self) -> str:
