@@ -233,7 +233,7 @@ def test_scalars_equal_the_records(run):
 
 
 def test_pull_held_markers_are_the_records_held_frames(tmp_path):
-    """A marker at 0 on each frame the observation pull was held by that gate, and on no other."""
+    """A marker below 0 on each frame the observation pull was held by that gate, and on no other."""
     # The synthetic default with its light dip moved to frame 14 (after the pull's 10 warm-up frames).
     seq = SyntheticSequence(SyntheticConfig(n_frames=26, fast_start=0, fast_end=0, illum_start=14, illum_end=40,
                                             occl_start=0, occl_end=0))
@@ -253,7 +253,7 @@ def test_pull_held_markers_are_the_records_held_frames(tmp_path):
     for reason in ("light", "look"):
         marks = scalar_series(t, p.pull_held(reason))
         held = {i + 1 for i, r in enumerate(recs) if r.pull is not None and reason in r.pull.held.split("+")}
-        assert set(marks) == held and all(v == 0.0 for v in marks.values())
+        assert set(marks) == held and all(v == P.PULL_HELD_LEVEL for v in marks.values())
 
 
 def test_likelihood_terms_equal_the_records(run):

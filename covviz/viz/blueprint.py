@@ -148,7 +148,8 @@ def build_blueprint(
                 name="Weights",
                 origin="/",
                 contents=[f"+ /{p.weights}/**" for p in pp],
-                axis_y=rrb.ScalarAxis(range=(0.0, 1.05)),
+                # below 0: a strip for the observation pull's held-frame markers, apart from the series
+                axis_y=rrb.ScalarAxis(range=(P.PULL_HELD_LEVEL * 2, 1.05)),
                 plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True),
             )
         )

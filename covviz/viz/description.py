@@ -87,7 +87,7 @@ Thresholds: `config`, `diagnosis`.
   score better, but no particle reached it), **diamond estimate** failure (particles reached the
   better-scoring truth, the estimate is elsewhere).
 * **Weights**: ESS/N, max weight, survivors of resampling (dots: resampled), the loss evidence
-  and the re-detected share; markers along 0 where the observation pull was held by its light
+  and the re-detected share; markers below 0 where the observation pull was held by its light
   gate (diamonds) or its look gate (squares): the templates did not learn that frame's look.
   The **Why off track** label carries, in the diagnosis of a loss, which part of the likelihood
   (descriptor, quadrants, colour) preferred the estimate's place to the truth's.

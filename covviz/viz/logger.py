@@ -446,13 +446,13 @@ class RerunLogger(Observer):
             for path, (col, label) in lines.items():
                 rec.log(path, rr.SeriesLines(colors=[col], names=[label], widths=[1.5]), static=True)
             if s.name in with_particles:
-                # The observation pull's held frames, a strip of markers along 0 (evidence holds show as the
+                # The observation pull's held frames, a strip of markers below 0 (evidence holds show as the
                 # loss evidence itself): when the templates stopped learning the look, and which gate said so.
                 for reason, marker in PULL_HELD_MARKERS.items():
                     rec.log(p.pull_held(reason),
                             rr.SeriesPoints(colors=[s.series_colors[f"pull_{reason}"]],
                                             names=[f"{s.prefix}pull held ({reason})"], markers=[marker],
-                                            marker_sizes=[2.0]), static=True)
+                                            marker_sizes=[2.5]), static=True)
             # Event markers in the tracker's colour, one shape per kind: several trackers on one plot
             # stay apart.
             for kind, marker in (("drift", "Cross"), ("lost", "Down"), ("recovered", "Up"), ("suspect", "Asterisk")):
@@ -643,7 +643,7 @@ class RerunLogger(Observer):
             if pull is not None:
                 for reason in PULL_HELD_MARKERS:
                     if reason in pull.held.split("+"):
-                        self.series.add(p.pull_held(reason), 0.0)
+                        self.series.add(p.pull_held(reason), P.PULL_HELD_LEVEL)
             if record.resampled:
                 self.series.add(p.resampled, ess / n)
                 idx = record.resample_indices

@@ -23,7 +23,8 @@ The entity tree::
     trackers/<name>/video/replay/<fix> Boxes2D: a loss's counterfactual replay under each fix (faint)
     trackers/<name>/weights/...      Scalars: ess (ESS/N), max, survivors, loss_evidence (the adaptive diffusion's
                                      e), redetected (share drawn afresh); SeriesPoints: resampled,
-                                     pull_held/<light|look> (at 0: the observation pull held by that gate)
+                                     pull_held/<light|look> (a strip below 0: the observation pull held by
+                                     that gate)
     trackers/<name>/distance/...     Scalars: min, mean (weighted), spread (template cloud)
     trackers/<name>/metrics/...      Scalars: iou, center_error; SeriesPoints: drift, lost, recovered;
                                      replay/<fix>: IoU of each counterfactual replay
@@ -92,6 +93,8 @@ IMAGE = "video/image"
 GROUND_TRUTH = "video/ground_truth"
 TRACKERS = "trackers"
 LOGGER_TIME = "logger/time"
+#: The value of the observation pull's held-frame markers on the weights plot: a strip below its 0.
+PULL_HELD_LEVEL = -0.04
 #: The blueprint's inputs (tracker names, which have templates / particles, image size), static.
 LAYOUT = "layout"
 #: Lanes of the story strip, per tracker, in the order they are drawn.
@@ -204,7 +207,8 @@ class TrackerPaths:
         return f"{self.weights}/redetected"
 
     def pull_held(self, reason: str) -> str:
-        """SeriesPoints at 0 on the frames the observation pull was held by ``reason`` (``light``, ``look``)."""
+        """SeriesPoints at :data:`PULL_HELD_LEVEL` on the frames the observation pull was held by ``reason``
+        (``light``, ``look``)."""
         return f"{self.weights}/pull_held/{reason}"
 
     @property
