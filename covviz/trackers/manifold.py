@@ -410,6 +410,9 @@ SEARCH_SPACE: dict[str, tuple[float, float, str]] = {
     "adaptive.template_slow": (0.0, 1.0, "linear"),
     "adaptive.redetect_fraction": (0.0, 0.5, "linear"),
     "adaptive.redetect_radius": (0.5, 5.0, "log"),
+    # the observation pull (covviz.model.adaptive): its rate (0: off) and its light gate (dev sweeps tried 2-3)
+    "observation_pull": (0.0, 0.15, "linear"),
+    "observation_pull_light_gate": (1.5, 4.0, "linear"),
 }
 
 
