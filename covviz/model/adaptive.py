@@ -41,7 +41,7 @@ drawn: its boxes are those of the constant noise, bit for bit. Enabled, a frame 
 one with ``e = 0`` draws exactly what the constant noise draws.
 
 **The observation pull** (:func:`observation_pull`; ``ManifoldConfig.observation_pull``,
-off by default and in ``manifold-paper``). The template walk lets the likelihood choose
+0.05 by default, off in ``manifold-paper``). The template walk lets the likelihood choose
 among random steps; it never steps *towards* what the tracker sees, so a target whose
 look changes steadily (a surfer in spray, a car turning and shrinking) is followed only
 as fast as selection among random steps allows. With the pull, on a frame whose evidence
