@@ -1,8 +1,9 @@
 """What a change of the tracker did to each loss: two `covviz bench --counterfactual` folders, loss by loss.
 
-Each loss of BEFORE is matched to the first unmatched loss of AFTER in the same sequence and seed that was lost
-within ``--within`` frames of it; a loss with no match was kept by the change, a loss of AFTER left unmatched is
-new. Prints the fate of BEFORE's losses by verdict (kept, or still lost with which verdict), the new losses by
+Each loss of BEFORE is matched one to one with a loss of AFTER in the same sequence and seed lost within
+``--within`` frames of it, nearest first (the report's matching of losses across seeds,
+:func:`covviz.experiments.report_counterfactual.match_losses`); a loss with no match was kept by the change, a
+loss of AFTER left unmatched is new. Prints the fate of BEFORE's losses by verdict (kept, or still lost with which verdict), the new losses by
 verdict, and every kept and new loss. How docs/tuning.md's "the observation pull becomes the default" counted::
 
     covviz bench ../shared/sequences --trackers manifold --seeds 3 --counterfactual \
@@ -20,6 +21,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from covviz.experiments.report import load_runs
+from covviz.experiments.report_counterfactual import MATCH_FRAMES, match_losses
 
 
 def losses(folder: str, tracker: str, seeds: set[int] | None) -> dict[tuple[str, int], list[tuple[int, str]]]:
@@ -39,7 +41,8 @@ def main(argv=None) -> int:
     ap.add_argument("after", help="bench folder of the tracker after it")
     ap.add_argument("--tracker", default="manifold", help="tracker name in both folders (default manifold)")
     ap.add_argument("--seeds", default=None, help="comma-separated seeds to compare (default: every seed)")
-    ap.add_argument("--within", type=int, default=10, help="frames between two losses that match (default 10)")
+    ap.add_argument("--within", type=int, default=MATCH_FRAMES,
+                    help=f"frames between two losses that match (default {MATCH_FRAMES})")
     a = ap.parse_args(argv)
     seeds = None if a.seeds is None else {int(s) for s in a.seeds.split(",")}
     old, new = losses(a.before, a.tracker, seeds), losses(a.after, a.tracker, seeds)
@@ -51,18 +54,15 @@ def main(argv=None) -> int:
     added: Counter = Counter()
     rows = []
     for key in sorted(old):
-        after = new[key]
-        used: set[int] = set()
-        for frame, verdict in old[key]:
-            match = [j for j, (g, _) in enumerate(after) if j not in used and abs(g - frame) <= a.within]
-            if match:
-                used.add(match[0])
-                fate[(verdict, f"still lost: {after[match[0]][1]}")] += 1
-            else:
+        pairs, unmatched = match_losses({"before": old[key], "after": new[key]}, a.within)
+        for x, y in pairs:
+            (_, _, was), (_, _, now) = sorted((x, y), key=lambda t: t[0] != "before")
+            fate[(was, f"still lost: {now}")] += 1
+        for side, frame, verdict in unmatched:
+            if side == "before":
                 fate[(verdict, "kept")] += 1
                 rows.append((*key, frame, f"kept (was {verdict})"))
-        for j, (frame, verdict) in enumerate(after):
-            if j not in used:
+            else:
                 added[verdict] += 1
                 rows.append((*key, frame, f"new ({verdict})"))
     n_old = sum(len(v) for v in old.values())
