@@ -639,10 +639,9 @@ class RerunLogger(Observer):
             if record.diffusion is not None:
                 self.series.add(p.loss_evidence, float(record.diffusion.evidence))
                 self.series.add(p.redetected, record.diffusion.redetected / n)
-            pull = getattr(record, "pull", None)
-            if pull is not None:
+            if record.pull is not None:
                 for reason in PULL_HELD_MARKERS:
-                    if reason in pull.held.split("+"):
+                    if reason in record.pull.held.split("+"):
                         self.series.add(p.pull_held(reason), P.PULL_HELD_LEVEL)
             if record.resampled:
                 self.series.add(p.resampled, ess / n)
