@@ -533,3 +533,108 @@ def test_pair_distances_check_their_inputs():
         kernels.pair_distances_fast(W, np.full((2, 9, 9), np.nan), [0], [1])
     # the identity against 2I: sqrt(9 ln²2)
     assert kernels.pair_distances_fast(W, 2 * W, [0], [1])[0] == pytest.approx(3 * np.log(2.0), rel=1e-14)
+
+
+# --------------------------------------------------------------------------- #
+# the colour term's window (covviz.model.fgbg, compiled=True)
+# --------------------------------------------------------------------------- #
+def _random_frames(rng):
+    """A colour frame, a grey one (three equal channels, as decoders give grey JPEGs) and a tiny one."""
+    c = rng.integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    g = np.repeat(rng.integers(0, 256, (41, 29, 1), dtype=np.uint8), 3, axis=2)
+    return [c, g, rng.integers(0, 256, (2, 3, 3), dtype=np.uint8)]
+
+
+def _states(frame, rng, fgbg):
+    """Colour states with random densities (every bin a different probability) for ``frame``."""
+    st = fgbg.init_colour_model(frame, (1, 0, 2, 2))
+    n = len(st.fg)
+    fg, bg = rng.random(n), rng.random(n)
+    return fgbg.ColourModel(fg / fg.sum(), bg / bg.sum(), np.array([0.3, 0.7, 1.5, 1.2]), st.grey)
+
+
+def test_compiled_colour_map_is_the_numpy_map_bit_for_bit(rng):
+    """Probabilities, integral image and F* of the compiled window equal the numpy path's (cv2.integral's
+    summation order), for colour and grey frames, windows clipped at every edge and one-pixel windows."""
+    from covviz.model import fgbg
+
+    for frame in _random_frames(rng):
+        H, W = frame.shape[:2]
+        for _ in range(25):
+            st = _states(frame, rng, fgbg)
+            w, h = rng.uniform(0.2, 1.5) * W, rng.uniform(0.2, 1.5) * H
+            box = np.array([rng.uniform(-w, W), rng.uniform(-h, H), w, h])
+            st = fgbg.ColourModel(st.fg, st.bg, box, st.grey)
+            a = fgbg.colour_map(frame, st, compiled=False)
+            b = fgbg.colour_map(frame, st, compiled=True)
+            assert a.origin == b.origin
+            assert a.integral.shape == b.integral.shape
+            assert np.array_equal(a.integral, b.integral)
+            assert a.best == b.best and a.area == b.area and a.gain == b.gain
+
+
+def test_compiled_colour_counts_and_updates_are_the_numpy_ones(rng):
+    from covviz.model import fgbg
+
+    for frame in _random_frames(rng):
+        H, W = frame.shape[:2]
+        for _ in range(25):
+            box = np.array([rng.uniform(-5, W), rng.uniform(-5, H), rng.uniform(0.5, W), rng.uniform(0.5, H)])
+            grey = fgbg._is_grey(frame)
+            for a, b in zip(fgbg._box_and_ring_histograms(frame, box, grey, False),
+                            fgbg._box_and_ring_histograms(frame, box, grey, True)):
+                assert a.dtype == b.dtype and np.array_equal(a, b)
+            s0 = fgbg.init_colour_model(frame, box, compiled=False)
+            s1 = fgbg.init_colour_model(frame, box, compiled=True)
+            assert np.array_equal(s0.fg, s1.fg) and np.array_equal(s0.bg, s1.bg) and s0.grey == s1.grey
+            u0 = fgbg.update_colour_model(s0, frame, box[[1, 0, 3, 2]], 0.04, compiled=False)
+            u1 = fgbg.update_colour_model(s1, frame, box[[1, 0, 3, 2]], 0.04, compiled=True)
+            assert np.array_equal(u0.fg, u1.fg) and np.array_equal(u0.bg, u1.bg)
+
+
+def test_the_detectors_colour_contrast_is_the_same_either_way(rng):
+    from covviz.diagnosis.signals import colour_contrast
+    from covviz.model import fgbg
+
+    for frame in _random_frames(rng):
+        H, W = frame.shape[:2]
+        lut = rng.random(fgbg._n_bins(fgbg._is_grey(frame))) - 0.5
+        for _ in range(20):
+            box = (rng.uniform(-3, W), rng.uniform(-3, H), rng.uniform(0.5, W), rng.uniform(0.5, H))
+            a = colour_contrast(frame, lut, fgbg._is_grey(frame), box, compiled=False)
+            b = colour_contrast(frame, lut, fgbg._is_grey(frame), box, compiled=True)
+            assert (np.isnan(a) and np.isnan(b)) or a == b
+
+
+def test_compiled_colour_falls_back_to_numpy_for_frames_it_does_not_read(rng):
+    """Float, two-dimensional and non-contiguous frames take the numpy path (same result, no error)."""
+    from covviz.model import fgbg
+
+    frame = rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)
+    st = _states(frame, rng, fgbg)
+    st = fgbg.ColourModel(st.fg, st.bg, np.array([5.0, 5.0, 12.0, 9.0]), st.grey)
+    ref = fgbg.colour_map(frame, st, compiled=True)
+    for other in (frame.astype(np.float32) / 255.0, np.ascontiguousarray(frame[:, ::-1])[:, ::-1]):
+        assert fgbg._kernels_for(other, True) is None
+        m = fgbg.colour_map(other, st, compiled=True)
+        assert np.array_equal(m.integral, ref.integral) and m.best == ref.best
+    assert fgbg._kernels_for(frame[..., 0], True) is None
+    assert fgbg._kernels_for(frame, False) is None
+
+
+def test_compiled_colour_on_real_frames_is_the_numpy_path():
+    """Car4 (grey) and Human3 (colour): the tracker's colour map and update around the truth, both paths."""
+    from covviz.model import fgbg
+
+    for name in ("Car4", "Human3"):
+        seq = open_sequence(real_sequence(name))
+        st = fgbg.init_colour_model(seq.frame(0).image, seq.init_box)
+        for i in (1, 30, 61):
+            fr = seq.frame(i).image
+            a, b = fgbg.colour_map(fr, st, compiled=False), fgbg.colour_map(fr, st, compiled=True)
+            assert np.array_equal(a.integral, b.integral) and a.best == b.best
+            box = seq.groundtruth[i]
+            u0 = fgbg.update_colour_model(st, fr, box, 0.04, compiled=False)
+            u1 = fgbg.update_colour_model(st, fr, box, 0.04, compiled=True)
+            assert np.array_equal(u0.fg, u1.fg) and np.array_equal(u0.bg, u1.bg)
+            st = u1

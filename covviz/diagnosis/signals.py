@@ -222,11 +222,11 @@ def saved_value(v: float) -> float | None:
     return None if not np.isfinite(v) else float(f"{v:.5g}")
 
 
-def colour_contrast(frame: np.ndarray, lut: np.ndarray, grey: bool, box) -> float:
+def colour_contrast(frame: np.ndarray, lut: np.ndarray, grey: bool, box, compiled: bool = False) -> float:
     """Mean of ``lut`` (``P − ½`` per colour bin, :func:`covviz.model.fgbg.foreground_lut`) over ``box``'s pixels
     minus its mean over the ring around it (the box grown by :data:`covviz.model.fgbg.RING_PAD` of its mean
     side on every side); both clipped to the frame, edges rounded to whole pixels. ``nan`` if the box holds
-    no pixel; an empty ring counts 0."""
+    no pixel; an empty ring counts 0. ``compiled``: the window's values by a kernel (the same bits)."""
     x, y, w, h = (float(v) for v in box)
     if not (np.isfinite([x, y, w, h]).all() and w > 0 and h > 0):
         return float("nan")
@@ -239,7 +239,7 @@ def colour_contrast(frame: np.ndarray, lut: np.ndarray, grey: bool, box) -> floa
     a_in = (x1 - x0) * (y1 - y0)
     if a_in <= 0:
         return float("nan")
-    P = lut[fgbg.colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], grey)]
+    P = fgbg.window_probabilities(frame, (X0, Y0, X1, Y1), lut, grey, compiled)
     s_in = float(P[y0 - Y0 : y1 - Y0, x0 - X0 : x1 - X0].sum())
     ring = (X1 - X0) * (Y1 - Y0) - a_in
     return s_in / a_in - ((float(P.sum()) - s_in) / ring if ring > 0 else 0.0)
@@ -258,10 +258,10 @@ class ColourSignal:
 
     def step(self, image: np.ndarray, box) -> float:
         if self.lut is None:  # the initial box: the colour model, no value
-            model = fgbg.init_colour_model(image, box)
+            model = fgbg.init_colour_model(image, box, compiled=True)
             self.lut, self.grey = fgbg.foreground_lut(model), model.grey
             return float("nan")
-        c = colour_contrast(image, self.lut, self.grey, box)
+        c = colour_contrast(image, self.lut, self.grey, box, compiled=True)
         if not np.isfinite(c):
             return float("nan")
         if self._ref_value is None:

@@ -50,6 +50,7 @@ __all__ = [
     "foreground_lut",
     "init_colour_model",
     "update_colour_model",
+    "window_probabilities",
 ]
 
 #: Histogram bins per colour channel (joint RGB: ``bins³`` cells) ...
@@ -107,6 +108,20 @@ def _n_bins(grey: bool) -> int:
     return GREY_BINS if grey else COLOUR_BINS**3
 
 
+def _kernels_for(frame, compiled: bool):
+    """The compiled kernels module when ``compiled`` and the frame is what they read (a C-contiguous
+    ``(H, W, 3)`` uint8 image), else None (the numpy path: the same values, bit for bit)."""
+    if not compiled:
+        return None
+    f = frame
+    if not (isinstance(f, np.ndarray) and f.dtype == np.uint8 and f.ndim == 3 and f.shape[2] == 3
+            and f.flags.c_contiguous):
+        return None
+    from covviz.model import kernels
+
+    return kernels if kernels.JIT_ENABLED else None
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class ColourModel:
     """The colour term's online state: replaced (never mutated) every frame.
@@ -140,10 +155,11 @@ def _readonly(a):
     return a
 
 
-def _box_and_ring_histograms(frame: np.ndarray, box, grey: bool):
+def _box_and_ring_histograms(frame: np.ndarray, box, grey: bool, compiled: bool = False):
     """Colour counts of ``box`` and of the ring around it (the box grown by :data:`RING_PAD`), clipped to the frame.
 
-    Only the ring's bounding rectangle of ``frame`` is binned.
+    Only the ring's bounding rectangle of ``frame`` is binned; ``compiled``: in one pass of a compiled
+    kernel (:func:`covviz.model.kernels.colour_counts_fast`: the same counts).
     """
     H, W = np.shape(frame)[:2]
     x, y, w, h = (float(v) for v in box)
@@ -152,8 +168,14 @@ def _box_and_ring_histograms(frame: np.ndarray, box, grey: bool):
     X1, Y1 = int(np.clip(round(x + w + pad), 0, W)), int(np.clip(round(y + h + pad), 0, H))
     x0, y0 = int(np.clip(round(x), X0, X1)), int(np.clip(round(y), Y0, Y1))
     x1, y1 = int(np.clip(round(x + w), X0, X1)), int(np.clip(round(y + h), Y0, Y1))
-    bins = colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], grey)
     n_bins = _n_bins(grey)
+    k = _kernels_for(frame, compiled)
+    if k is not None:
+        a, t = k.colour_counts_fast(frame, (X0, Y0, X1, Y1), (x0, y0, x1, y1), grey, _COLOUR_SHIFT, _GREY_SHIFT,
+                                    n_bins)
+        fg = a.astype(np.float64)
+        return fg, np.maximum(t.astype(np.float64) - fg, 0.0)
+    bins = colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], grey)
     inner = bins[y0 - Y0 : y1 - Y0, x0 - X0 : x1 - X0].ravel()
     outer = bins.ravel()
     fg = np.bincount(inner, minlength=n_bins).astype(np.float64)
@@ -165,16 +187,18 @@ def _density(counts: np.ndarray) -> np.ndarray:
     return counts / max(float(counts.sum()), 1.0)
 
 
-def init_colour_model(frame: np.ndarray, box) -> ColourModel:
-    """The colour state at the initial box ``x, y, w, h`` (0-based pixels)."""
+def init_colour_model(frame: np.ndarray, box, compiled: bool = False) -> ColourModel:
+    """The colour state at the initial box ``x, y, w, h`` (0-based pixels); ``compiled``: counted by a kernel."""
     grey = _is_grey(frame)
-    fg, bg = _box_and_ring_histograms(frame, box, grey)
+    fg, bg = _box_and_ring_histograms(frame, box, grey, compiled)
     return ColourModel(_readonly(_density(fg)), _readonly(_density(bg)), _readonly(np.asarray(box, float)), grey)
 
 
-def update_colour_model(state: ColourModel, frame: np.ndarray, box, rate: float) -> ColourModel:
-    """``state`` blended towards the histograms observed at ``box`` with learning ``rate`` (Staple: 0.04)."""
-    fg, bg = _box_and_ring_histograms(frame, box, state.grey)
+def update_colour_model(state: ColourModel, frame: np.ndarray, box, rate: float,
+                        compiled: bool = False) -> ColourModel:
+    """``state`` blended towards the histograms observed at ``box`` with learning ``rate`` (Staple: 0.04);
+    ``compiled``: counted by a kernel (the same state, bit for bit)."""
+    fg, bg = _box_and_ring_histograms(frame, box, state.grey, compiled)
     return ColourModel(
         _readonly((1 - rate) * state.fg + rate * _density(fg)),
         _readonly((1 - rate) * state.bg + rate * _density(bg)),
@@ -215,10 +239,23 @@ class ColourMap:
     gain: float = 1.0
 
 
-def colour_map(frame: np.ndarray, state: ColourModel, reliability: float = 0.0) -> ColourMap:
+def window_probabilities(frame: np.ndarray, window, lut: np.ndarray, grey: bool, compiled: bool = False) -> np.ndarray:
+    """``lut`` at every pixel's colour bin in ``window`` = ``(X0, Y0, X1, Y1)`` of ``frame``, ``(Y1 - Y0, X1 - X0)``;
+    ``compiled``: in one pass of a kernel (the same values)."""
+    X0, Y0, X1, Y1 = (int(v) for v in window)
+    k = _kernels_for(frame, compiled)
+    if k is not None:
+        return k.colour_window_fast(frame, X0, Y0, X1, Y1, grey, _COLOUR_SHIFT, _GREY_SHIFT, lut)[0]
+    return lut[colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], grey)]
+
+
+def colour_map(frame: np.ndarray, state: ColourModel, reliability: float = 0.0, compiled: bool = False) -> ColourMap:
     """The foreground probability of ``frame`` in the window around ``state.box`` (:data:`WINDOW_FACTOR`).
 
     ``reliability`` > 0 scales the term by ``(state.contrast / CONTRAST_REF)**reliability``.
+    ``compiled``: the bins, the probabilities and their integral image in one pass of a compiled kernel
+    (:func:`covviz.model.kernels.colour_window_fast`), the same map bit for bit, without the numpy
+    path's five window-sized temporaries.
     """
     H, W = np.shape(frame)[:2]
     x, y, w, h = (float(v) for v in state.box)
@@ -226,9 +263,13 @@ def colour_map(frame: np.ndarray, state: ColourModel, reliability: float = 0.0) 
     half = WINDOW_FACTOR * np.sqrt(w * h) / 2 + max(w, h) / 2
     X0, Y0 = int(np.clip(np.floor(cx - half), 0, W - 1)), int(np.clip(np.floor(cy - half), 0, H - 1))
     X1, Y1 = int(np.clip(np.ceil(cx + half), X0 + 1, W)), int(np.clip(np.ceil(cy + half), Y0 + 1, H))
-    bins = colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], state.grey)
-    P = foreground_lut(state)[bins]
-    integral = cv2.integral(P.astype(np.float64), sdepth=cv2.CV_64F)
+    k = _kernels_for(frame, compiled)
+    if k is not None:
+        P, integral = k.colour_window_fast(frame, X0, Y0, X1, Y1, state.grey, _COLOUR_SHIFT, _GREY_SHIFT,
+                                           foreground_lut(state))
+    else:
+        P = foreground_lut(state)[colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], state.grey)]
+        integral = cv2.integral(P, sdepth=cv2.CV_64F)
     gain = (state.contrast / CONTRAST_REF) ** reliability if reliability > 0 else 1.0
     return ColourMap((X0, Y0), integral, float(np.maximum(P, 0.0).sum()), max(w * h, 1.0), float(gain))
 

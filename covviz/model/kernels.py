@@ -20,6 +20,11 @@ same quantities with less work:
 * :func:`pair_distances_fast` — the affine-invariant distance of given pairs of
   SPD matrices (the recorder's and ``covviz mds``'s distance matrices), by the
   same Jacobi on blocks of pairs.
+* :func:`colour_window_fast`, :func:`colour_counts_fast` — the colour term's
+  window (:mod:`covviz.model.fgbg`): each pixel's colour bin, its foreground
+  probability and the integral image in one pass, and the box's and ring's
+  histograms; the same values as the numpy path bit for bit, without its
+  window-sized temporaries (whose fresh pages were most of its time).
 
 Precision
 ---------
@@ -1347,6 +1352,79 @@ def quadrant_distances_fast(Q, ref, ref_logdet) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- #
+# the colour term's window (covviz.model.fgbg)
+# --------------------------------------------------------------------------- #
+@_jit(_FM_FEAT)
+def _colour_bin(frame, y, x, grey, cshift, gshift):
+    """The histogram bin of pixel ``(y, x)`` of an ``(H, W, 3)`` uint8 frame (:func:`covviz.model.fgbg.colour_bins`)."""
+    if grey:
+        return np.int64(frame[y, x, 0] >> gshift)
+    k = 8 - cshift
+    return ((np.int64(frame[y, x, 0] >> cshift) << (2 * k)) | (np.int64(frame[y, x, 1] >> cshift) << k)
+            | np.int64(frame[y, x, 2] >> cshift))
+
+
+@_jit(_FM_FEAT, entry=True)
+def _colour_window(frame, X0, Y0, grey, cshift, gshift, lut, P, integral):
+    """``P[y, x] = lut[bin(frame[Y0 + y, X0 + x])]`` over ``P``'s shape, and its integral image.
+
+    ``integral`` (h + 1, w + 1) float64 is summed as ``cv2.integral`` sums a
+    float64 image: a running sum along each row added to the row above, so the
+    values are the same bits (no fastmath: every addition as written).
+    """
+    h, w = P.shape
+    for x in range(w + 1):
+        integral[0, x] = 0.0
+    for y in range(h):
+        up = integral[y]
+        row = integral[y + 1]
+        pr = P[y]
+        row[0] = 0.0
+        s = 0.0
+        for x in range(w):
+            v = lut[_colour_bin(frame, Y0 + y, X0 + x, grey, cshift, gshift)]
+            pr[x] = v
+            s += v
+            row[x + 1] = up[x + 1] + s
+
+
+@_jit(_FM_FEAT, entry=True)
+def _colour_counts(frame, X0, Y0, X1, Y1, x0, y0, x1, y1, grey, cshift, gshift, inner, total):
+    """Pixel counts per colour bin of ``[y0:y1, x0:x1]`` (``inner``) and of ``[Y0:Y1, X0:X1]`` (``total``), int64."""
+    inner[:] = 0
+    total[:] = 0
+    for y in range(Y0, Y1):
+        for x in range(X0, X1):
+            b = _colour_bin(frame, y, x, grey, cshift, gshift)
+            total[b] += 1
+            if y >= y0 and y < y1 and x >= x0 and x < x1:
+                inner[b] += 1
+
+
+def colour_window_fast(frame, X0: int, Y0: int, X1: int, Y1: int, grey: bool, cshift: int, gshift: int,
+                       lut) -> tuple[np.ndarray, np.ndarray]:
+    """``(P, integral)`` of :func:`covviz.model.fgbg.colour_map` over ``frame[Y0:Y1, X0:X1]`` in one pass.
+
+    ``frame`` (H, W, 3) uint8; ``lut`` (bins,) float64. ``P`` (h, w) and ``integral`` (h + 1, w + 1), float64,
+    the same bits as ``lut[colour_bins(...)]`` and ``cv2.integral`` of it.
+    """
+    P = np.empty((Y1 - Y0, X1 - X0))
+    integral = np.empty((Y1 - Y0 + 1, X1 - X0 + 1))
+    _colour_window(frame, int(X0), int(Y0), bool(grey), int(cshift), int(gshift), lut, P, integral)
+    return P, integral
+
+
+def colour_counts_fast(frame, outer: tuple, inner: tuple, grey: bool, cshift: int, gshift: int,
+                       n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Counts per bin of the ``inner`` rectangle and of the ``outer`` one (``x0, y0, x1, y1`` each), int64."""
+    a = np.empty(n_bins, dtype=np.int64)
+    t = np.empty(n_bins, dtype=np.int64)
+    _colour_counts(frame, *(int(v) for v in outer), *(int(v) for v in inner), bool(grey), int(cshift), int(gshift),
+                   a, t)
+    return a, t
+
+
+# --------------------------------------------------------------------------- #
 # cold start
 # --------------------------------------------------------------------------- #
 def _warmup_calls():
@@ -1367,6 +1445,11 @@ def _warmup_calls():
     ro = lambda a: np.frombuffer(np.ascontiguousarray(a).tobytes(), dtype=a.dtype).reshape(a.shape)
     template_distances_fast(ro(np.zeros((2, 9, 9))), C)
     quadrant_distances_fast(Q, ro(Q[0]), ro(np.zeros(4)))
+    f = rng.integers(0, 256, (6, 7, 3), dtype=np.uint8)
+    for frame in (f, ro(f)):  # a caller's frames may be read-only
+        for grey in (True, False):
+            colour_window_fast(frame, 1, 1, 6, 5, grey, 4, 3, np.zeros(4096))
+            colour_counts_fast(frame, (0, 0, 7, 6), (1, 1, 4, 4), grey, 4, 3, 4096)
 
 
 def kernels_cached() -> bool:

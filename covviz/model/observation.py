@@ -527,7 +527,7 @@ class ObservationModel:
         """The foreground probability of a (raw, colour) ``frame`` given the colour state; None without the term."""
         if not self.colour or state is None:
             return None
-        return fgbg.colour_map(frame, state, self.colour_reliability)
+        return fgbg.colour_map(frame, state, self.colour_reliability, compiled=self.compiled)
 
     def colour_terms(self, cmap: fgbg.ColourMap, poses) -> np.ndarray:
         """The colour term (unweighted) of each pose's axis-aligned box (:func:`covviz.model.features.pose_to_box`), ``(n,)``."""

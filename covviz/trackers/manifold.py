@@ -643,7 +643,7 @@ class ManifoldTracker:
         states = np.zeros((n, 6))
         states[:, X], states[:, Y], states[:, SCALE] = pose[0, 0], pose[0, 1], 1.0
         self.initial_template = L0
-        self.colour = fgbg.init_colour_model(frame, b) if model.colour else None
+        self.colour = fgbg.init_colour_model(frame, b, compiled=model.compiled) if model.colour else None
         self.quadrant_state = model.initial_quadrant_state() if cfg.quadrant_reliability > 0 else None
         self.anchor = AnchorState(_ro(L0), 1.0) if cfg.anchor_pull > 0 else None
         self.adapt = AdaptState.start(pose[0], L0) if cfg.adaptive.enabled else None
@@ -729,7 +729,8 @@ class ManifoldTracker:
             ob = model.observe(gray, truth)
             templates = np.broadcast_to(logm(ob.descriptors)[0], templates.shape).copy()
             if model.colour:
-                self.colour = fgbg.init_colour_model(frame, np.asarray(look, dtype=np.float64))
+                self.colour = fgbg.init_colour_model(frame, np.asarray(look, dtype=np.float64),
+                                                     compiled=model.compiled)
             if model.quadrants:
                 Q = ob.quadrants[0]
                 model = dataclasses.replace(model, quadrant_reference=Q, quadrant_logdet=logdet(Q))
@@ -917,7 +918,7 @@ class ManifoldTracker:
                                         cfg.adaptive)
         box = est_box = pose_to_box(est_pose[None], model.base_wh)[0]  # est_box: the filter's, after the ncc step too
         if colour_state is not None:
-            self.colour = fgbg.update_colour_model(colour_state, frame, box, cfg.colour_rate)
+            self.colour = fgbg.update_colour_model(colour_state, frame, box, cfg.colour_rate, compiled=model.compiled)
         if cur8 is not None:
             self.flow = FlowState(_ro(cur8, np.uint8), _ro(box))
         if small is not None:
