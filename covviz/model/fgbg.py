@@ -245,7 +245,7 @@ def window_probabilities(frame: np.ndarray, window, lut: np.ndarray, grey: bool,
     X0, Y0, X1, Y1 = (int(v) for v in window)
     k = _kernels_for(frame, compiled)
     if k is not None:
-        return k.colour_window_fast(frame, X0, Y0, X1, Y1, grey, _COLOUR_SHIFT, _GREY_SHIFT, lut)[0]
+        return k.colour_window_fast(frame, X0, Y0, X1, Y1, grey, _COLOUR_SHIFT, _GREY_SHIFT, lut, False)[0]
     return lut[colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], grey)]
 
 
@@ -263,12 +263,12 @@ def colour_map(frame: np.ndarray, state: ColourModel, reliability: float = 0.0, 
     half = WINDOW_FACTOR * np.sqrt(w * h) / 2 + max(w, h) / 2
     X0, Y0 = int(np.clip(np.floor(cx - half), 0, W - 1)), int(np.clip(np.floor(cy - half), 0, H - 1))
     X1, Y1 = int(np.clip(np.ceil(cx + half), X0 + 1, W)), int(np.clip(np.ceil(cy + half), Y0 + 1, H))
+    lut = foreground_lut(state)
     k = _kernels_for(frame, compiled)
     if k is not None:
-        P, integral = k.colour_window_fast(frame, X0, Y0, X1, Y1, state.grey, _COLOUR_SHIFT, _GREY_SHIFT,
-                                           foreground_lut(state))
+        P, integral = k.colour_window_fast(frame, X0, Y0, X1, Y1, state.grey, _COLOUR_SHIFT, _GREY_SHIFT, lut)
     else:
-        P = foreground_lut(state)[colour_bins(np.asarray(frame)[Y0:Y1, X0:X1], state.grey)]
+        P = window_probabilities(frame, (X0, Y0, X1, Y1), lut, state.grey)
         integral = cv2.integral(P, sdepth=cv2.CV_64F)
     gain = (state.contrast / CONTRAST_REF) ** reliability if reliability > 0 else 1.0
     return ColourMap((X0, Y0), integral, float(np.maximum(P, 0.0).sum()), max(w * h, 1.0), float(gain))

@@ -1370,9 +1370,16 @@ def _colour_window(frame, X0, Y0, grey, cshift, gshift, lut, P, integral):
 
     ``integral`` (h + 1, w + 1) float64 is summed as ``cv2.integral`` sums a
     float64 image: a running sum along each row added to the row above, so the
-    values are the same bits (no fastmath: every addition as written).
+    values are the same bits (no fastmath: every addition as written). An
+    empty ``integral`` (0, 0): the probabilities only.
     """
     h, w = P.shape
+    if integral.shape[0] == 0:
+        for y in range(h):
+            pr = P[y]
+            for x in range(w):
+                pr[x] = lut[_colour_bin(frame, Y0 + y, X0 + x, grey, cshift, gshift)]
+        return
     for x in range(w + 1):
         integral[0, x] = 0.0
     for y in range(h):
@@ -1402,16 +1409,17 @@ def _colour_counts(frame, X0, Y0, X1, Y1, x0, y0, x1, y1, grey, cshift, gshift, 
 
 
 def colour_window_fast(frame, X0: int, Y0: int, X1: int, Y1: int, grey: bool, cshift: int, gshift: int,
-                       lut) -> tuple[np.ndarray, np.ndarray]:
+                       lut, with_integral: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """``(P, integral)`` of :func:`covviz.model.fgbg.colour_map` over ``frame[Y0:Y1, X0:X1]`` in one pass.
 
     ``frame`` (H, W, 3) uint8; ``lut`` (bins,) float64. ``P`` (h, w) and ``integral`` (h + 1, w + 1), float64,
-    the same bits as ``lut[colour_bins(...)]`` and ``cv2.integral`` of it.
+    the same bits as ``lut[colour_bins(...)]`` and ``cv2.integral`` of it; ``with_integral`` False: ``P`` and
+    None (no integral image made).
     """
     P = np.empty((Y1 - Y0, X1 - X0))
-    integral = np.empty((Y1 - Y0 + 1, X1 - X0 + 1))
+    integral = np.empty((Y1 - Y0 + 1, X1 - X0 + 1) if with_integral else (0, 0))
     _colour_window(frame, int(X0), int(Y0), bool(grey), int(cshift), int(gshift), lut, P, integral)
-    return P, integral
+    return P, integral if with_integral else None
 
 
 def colour_counts_fast(frame, outer: tuple, inner: tuple, grey: bool, cshift: int, gshift: int,
@@ -1448,7 +1456,8 @@ def _warmup_calls():
     f = rng.integers(0, 256, (6, 7, 3), dtype=np.uint8)
     for frame in (f, ro(f)):  # a caller's frames may be read-only
         for grey in (True, False):
-            colour_window_fast(frame, 1, 1, 6, 5, grey, 4, 3, np.zeros(4096))
+            for with_integral in (True, False):
+                colour_window_fast(frame, 1, 1, 6, 5, grey, 4, 3, np.zeros(4096), with_integral)
             colour_counts_fast(frame, (0, 0, 7, 6), (1, 1, 4, 4), grey, 4, 3, 4096)
 
 
