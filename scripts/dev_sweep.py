@@ -174,6 +174,10 @@ def bysequence(args) -> int:
     return 0
 
 
+#: A loss whose drift began at most this many frames before it is a jump (``losses``' last column): the
+#: particles did not follow the target, and no evidence read after the fact can keep it.
+JUMP_FRAMES = 2
+
 def losses(args) -> int:
     """Per sequence: where a variant's losses recur over the seeds and what its boxes did there
     (:mod:`covviz.experiments.losses`), from the saved boxes and the truth under ``--root``. The boxes are
@@ -184,8 +188,9 @@ def losses(args) -> int:
 
     seeds = [int(x) for x in args.seeds.split(",")]
     print(f"| sequence | losses ({len(seeds)} seeds) | found again (median frames) | recurring: lost at (seeds) "
-          f"| box / truth size at the loss (median; > 1.6, < 0.6) | centre within 0.75 sizes |")
-    print("|---|---:|---:|---|---:|---:|")
+          f"| box / truth size at the loss (median; > 1.6, < 0.6) | centre within 0.75 sizes "
+          f"| drift to loss (median frames; within {JUMP_FRAMES}) |")
+    print("|---|---:|---:|---|---:|---:|---:|")
     total = Counter()
     for q in A + B:
         gt = open_sequence(str(Path(args.root) / q)).groundtruth
@@ -201,12 +206,16 @@ def losses(args) -> int:
         places = ", ".join(f"{a}–{b_} ({c})" for a, b_, c in recurring(per_seed)) or "—"
         r = np.array([x.size_ratio for x in ls])
         near = sum(x.centre_offset < 0.75 for x in ls)
+        drift = [x.drift_frames for x in ls]
+        jumps = sum(f <= JUMP_FRAMES for f in drift)
         total.update(losses=len(ls), found=len(found), grew=int((r > 1.6).sum()), shrank=int((r < 0.6).sum()),
-                     near=near)
+                     near=near, jumps=jumps)
         size = f"{np.median(r):.2f}; {(r > 1.6).sum()}, {(r < 0.6).sum()}" if len(ls) else "—"
+        slide = f"{np.median(drift):.0f}; {jumps}" if ls else "—"
         print(f"| {q} | {len(ls)} | {len(found)}" + (f" ({np.median(found):.0f})" if found else "")
-              + f" | {places} | {size} | {near} |")
-    print(f"| **all** | {total['losses']} | {total['found']} | | {total['grew']}, {total['shrank']} | {total['near']} |")
+              + f" | {places} | {size} | {near} | {slide} |")
+    print(f"| **all** | {total['losses']} | {total['found']} | | {total['grew']}, {total['shrank']} | {total['near']} "
+          f"| {total['jumps']} |")
     return 0
 
 

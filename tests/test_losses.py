@@ -19,7 +19,7 @@ def test_a_slide_off_and_back_is_found_again_with_its_offset():
     b = g.copy()
     b[10:15, 0] += 40  # two sizes to the right on frames 11-15 (1-based), back on 16
     (loss,) = describe_losses(b, g)
-    assert loss.lost_at == 11 and loss.drift_began == 11
+    assert loss.lost_at == 11 and loss.drift_began == 11 and loss.drift_frames == 0  # a jump: lost as it began
     assert loss.found_again == 16 and loss.frames_lost == 5
     assert loss.size_ratio == pytest.approx(1.0)
     assert loss.centre_offset == pytest.approx(2.0)
@@ -44,6 +44,7 @@ def test_a_box_grown_around_the_target_is_on_the_spot_and_never_found():
     assert loss.found_again is None and loss.frames_lost is None
     # the event detector's onset: the IoU has been falling since frame 2, where the growth began
     assert loss.drift_began == 2 and loss.lost_at == 14  # 1.1^13 = 3.45 > sqrt(10) >= 1.1^12
+    assert loss.drift_frames == 12  # a slow slide: twelve frames from its start to the loss
 
 
 def test_missing_truth_is_never_the_frame_found_again():
@@ -85,3 +86,34 @@ def test_recurring_places_count_each_seed_once_and_come_most_seeds_first():
     assert recurring({}) == []
     with pytest.raises(ValueError, match="window"):
         recurring(per_seed, window=0)
+
+
+def test_early_warning_script_splits_jumps_from_slides_and_times_the_evidence(tmp_path, capsys):
+    """scripts/early_warning.py on a bench folder of one run: a slide (drift 11, lost 16) and a jump (31, 31)."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    iou = np.full(40, 0.8)
+    iou[10:16] = [0.7, 0.6, 0.45, 0.3, 0.2, 0.05]  # frames 11-16: the slide
+    iou[16:20] = 0.05
+    iou[30:] = 0.02  # frame 31: the jump
+    colour = np.zeros(40)
+    colour[12:] = 1.0  # above 0.8 from frame 13: 3 frames before the slide's loss
+    colour[30:] = 0.0
+    p = [None] * 40  # the drift probability missing everywhere: never true
+    run = {"tracker": "manifold", "seed": 0,
+           "diagnosis": {"frame_iou": iou.tolist(), "signals": {"colour": colour.tolist()}, "drift_probability": p}}
+    (tmp_path / "Seq").mkdir()
+    (tmp_path / "Seq" / "manifold_s0.json").write_text(json.dumps(run))
+    path = Path(__file__).resolve().parents[1] / "scripts" / "early_warning.py"
+    spec = importlib.util.spec_from_file_location("early_warning", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.main([str(tmp_path), "colour > 0.8", "p > 0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "2 losses in 1 runs; 1 jumps" in out and "1 slides" in out
+    assert "| `colour > 0.8` | 1 of 1 | 3 |" in out
+    assert "| `p > 0.5` | 0 of 1 | — |" in out
+    assert "| Seq | manifold_s0 | 11 | 16 | 3 | · |" in out
+    assert mod.main([str(tmp_path / "none")]) == 2

@@ -7,6 +7,8 @@ Each loss is the event detector's (:func:`covviz.diagnosis.calibrate.losses_of`:
   0.5), or None: a brief excursion the filter recovers from by itself, or a target lost for good;
 * ``size_ratio``: ``√(area of the box / area of the truth)`` at the loss — a box that grew onto its
   surroundings (Car1's slow growth) against one that slid off at the target's size;
+* ``drift_frames`` (a property): the frames from the drift's start to the loss — 0 to 2 for a jump the
+  particles did not follow (lost before anything label-free could react), more for a slow slide;
 * ``centre_offset``: the distance between the box's and the truth's centres at the loss, in truth sizes
   (``√(w·h)``) — small for a box still on the spot (a target hidden behind an occluder, a box grown around
   it), large for one that followed something else.
@@ -39,6 +41,13 @@ class Loss:
     found_again: int | None
     size_ratio: float
     centre_offset: float
+
+    @property
+    def drift_frames(self) -> int:
+        """Frames from the drift's start to the loss: 0 for a box that lost the target on the frame its IoU
+        began to fall (a jump the search did not follow), more for a slide the label-free evidence could
+        catch before the loss."""
+        return self.lost_at - self.drift_began
 
     @property
     def frames_lost(self) -> int | None:
