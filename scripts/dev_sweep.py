@@ -132,23 +132,36 @@ def _load(out: str, name: str, q: str, sd: int) -> dict:
     return json.loads((Path(out) / name / f"{q}_s{sd}.json").read_text())
 
 
+def _sequences(out: str, names, seeds) -> list[str]:
+    """The dev sequences (set A's, then B's) with a result for every variant in ``names`` at every seed: a variant
+    run with ``--set A`` or ``--set B`` is compared on its half. Says which were left out; exits if none is left."""
+    have = [q for q in A + B if all((Path(out) / n / f"{q}_s{sd}.json").exists() for n in names for sd in seeds)]
+    if not have:
+        raise SystemExit(f"no sequence has results for {', '.join(names)} at seeds {seeds} under {out}")
+    left = [q for q in A + B if q not in have]
+    if left:
+        print(f"(compared on {len(have)} sequences; without results for every seed: {', '.join(left)})")
+    return have
+
+
 def pair(args) -> int:
     """Mean success AUC of two variants on the same sequences and seeds, their paired difference with a 95%
-    interval from resampling the 14 sequences, and the losses, for each seed set given and all of them pooled."""
+    interval from resampling the sequences (the 14, or the half both were run on), and the losses, for each seed set given and all of them pooled."""
     load = functools.partial(_load, args.out)
     groups = [[int(x) for x in g.split(",")] for g in args.seeds]
     if len(groups) > 1:
         groups.append(sorted({sd for g in groups for sd in g}))
     a_name, b_name = args.names
+    seqs = _sequences(args.out, args.names, groups[-1])
     print(f"| seeds | {a_name} | {b_name} | difference [95%] | losses |")
     print("|---|---:|---:|---:|---:|")
     rng = np.random.default_rng(0)
     for g in groups:
-        a = np.array([[load(a_name, q, sd)["auc"] for sd in g] for q in A + B])
-        b = np.array([[load(b_name, q, sd)["auc"] for sd in g] for q in A + B])
+        a = np.array([[load(a_name, q, sd)["auc"] for sd in g] for q in seqs])
+        b = np.array([[load(b_name, q, sd)["auc"] for sd in g] for q in seqs])
         d = (b - a).mean(axis=1)
         boot = [d[rng.integers(0, len(d), len(d))].mean() for _ in range(4000)]
-        la, lb = (sum(load(n, q, sd)["losses"] for q in A + B for sd in g) for n in (a_name, b_name))
+        la, lb = (sum(load(n, q, sd)["losses"] for q in seqs for sd in g) for n in (a_name, b_name))
         lo, hi = np.percentile(boot, [2.5, 97.5])
         print(f"| {','.join(map(str, g))} | {a.mean():.3f} | {b.mean():.3f} | {d.mean():+.3f} [{lo:+.3f}, {hi:+.3f}] "
               f"| {la} → {lb} |")
@@ -162,9 +175,10 @@ def bysequence(args) -> int:
     load = functools.partial(_load, args.out)
     seeds = [int(x) for x in args.seeds.split(",")]
     a_name, b_name = args.names
+    seqs = _sequences(args.out, args.names, seeds)
     print(f"| sequence | {a_name} | {b_name} | difference (± s.e., {len(seeds)} seeds) | losses |")
     print("|---|---:|---:|---:|---:|")
-    for q in A + B:
+    for q in seqs:
         a = np.array([load(a_name, q, sd)["auc"] for sd in seeds])
         b = np.array([load(b_name, q, sd)["auc"] for sd in seeds])
         d = b - a
