@@ -188,17 +188,13 @@ def bysequence(args) -> int:
     return 0
 
 
-#: A loss whose drift began at most this many frames before it is a jump (``losses``' last column): the
-#: particles did not follow the target, and no evidence read after the fact can keep it.
-JUMP_FRAMES = 2
-
 def losses(args) -> int:
     """Per sequence: where a variant's losses recur over the seeds and what its boxes did there
     (:mod:`covviz.experiments.losses`), from the saved boxes and the truth under ``--root``. The boxes are
     saved to two decimals (the OTB results format), so an IoU near a threshold may fall the other way: a
     variant's total may differ from ``run``'s by a few (267 against 261 in 210 runs, the most seen)."""
     from covviz.data.sequences import open_sequence
-    from covviz.experiments.losses import describe_losses, recurring
+    from covviz.experiments.losses import JUMP_FRAMES, describe_losses, recurring
 
     seeds = [int(x) for x in args.seeds.split(",")]
     print(f"| sequence | losses ({len(seeds)} seeds) | found again (median frames) | recurring: lost at (seeds) "

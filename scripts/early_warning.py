@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from covviz.experiments.losses import JUMP_FRAMES
+
 DEFAULT_CONDITIONS = ("p > 0.5", "colour > 0.8", "slip > 0.5", "dmin_z > 3",
                       "(colour > 0.8) & ((flow_gap > 0.3) | (fb_fail > 0.3))")
 
@@ -41,7 +43,7 @@ def main(argv=None) -> int:
     ap.add_argument("conditions", nargs="*", default=list(DEFAULT_CONDITIONS),
                     help="expressions over the saved signals and p (default: %(default)s)")
     ap.add_argument("--tracker", default="manifold", help="whose runs (default: %(default)s)")
-    ap.add_argument("--jump", type=int, default=2,
+    ap.add_argument("--jump", type=int, default=JUMP_FRAMES,
                     help="a loss at most this many frames after its drift began is a jump (default: %(default)s)")
     args = ap.parse_args(argv)
 

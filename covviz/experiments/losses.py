@@ -26,10 +26,13 @@ import numpy as np
 
 from covviz.metrics import iou
 
-__all__ = ["FOUND_IOU", "Loss", "describe_losses", "recurring"]
+__all__ = ["FOUND_IOU", "JUMP_FRAMES", "Loss", "describe_losses", "recurring"]
 
 #: A lost target counts as found again from the first later frame with at least this IoU (OTB's success threshold).
 FOUND_IOU = 0.5
+#: A loss at most this many frames after its drift began is a jump (:attr:`Loss.drift_frames`): the particles did
+#: not follow the target, and no evidence read from a frame can act before the next one.
+JUMP_FRAMES = 2
 
 
 @dataclass(frozen=True)
