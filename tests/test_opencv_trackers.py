@@ -188,3 +188,25 @@ def test_opencv_box_rounds_edges_and_clips_to_the_frame():
     assert ocv._opencv_box(np.array([99.8, 10.0, 5.0, 5.0]), (80, 100), True) == (99, 10, 1, 5)
     # float boxes (legacy API): clipped only
     assert ocv._opencv_box(np.array([-5.0, 2.5, 20.0, 3.0]), (80, 100), False) == (0.0, 2.5, 15.0, 3.0)
+
+
+def test_only_a_run_of_opencv_trackers_keeps_opencvs_threads():
+    from covviz.trackers import native_threads_wanted
+
+    assert native_threads_wanted(["csrt"]) and native_threads_wanted(list(NAMES))
+    assert not native_threads_wanted(["csrt", "manifold"])  # manifold's observation threads come first
+    assert not native_threads_wanted(["manifold@b"]) and not native_threads_wanted([])
+
+
+@pytest.mark.parametrize("name", ("csrt", "kcf"))
+def test_boxes_do_not_depend_on_opencvs_threads(name, seq):
+    """What lets ``covviz track --tracker csrt`` leave OpenCV its threads: the same boxes on one and on four."""
+    before = cv2.getNumThreads()
+    boxes = []
+    try:
+        for n in (1, 4):
+            cv2.setNumThreads(n)
+            boxes.append(run(make_tracker(name), seq).boxes)
+    finally:
+        cv2.setNumThreads(before)
+    assert np.array_equal(boxes[0], boxes[1])

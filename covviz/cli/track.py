@@ -217,9 +217,11 @@ def _hold_outputs(args, seq, save: Path | None, created: list[Path] | None):
 def cmd_track(args) -> int:
     # One native thread for BLAS and OpenCV while tracking: more only contend with the
     # tracker's own threads on 9x9 matrices (one BLAS thread halves the CPU time at the same speed).
+    # A run of OpenCV's trackers alone keeps OpenCV's threads: they are its trackers' own.
     from covviz.threads import limit_threads
+    from covviz.trackers import native_threads_wanted
 
-    with limit_threads(1):
+    with limit_threads(1, opencv=not native_threads_wanted(args.trackers)):
         return _track(args)
 
 def _report_unscored(seq, n_frames: int) -> None:

@@ -22,6 +22,7 @@ __all__ = [
     "Tracker",
     "TrackerEntry",
     "make_tracker",
+    "native_threads_wanted",
     "tracker_names",
     "tracker_rng",
 ]
@@ -41,12 +42,17 @@ class TrackerEntry:
         Its factory takes a ``ManifoldConfig`` (``--config``).
     snapshots : bool
         ``snapshot()``/``restore()`` work: its losses can be replayed (else a restart at the truth).
+    native_threads : bool
+        Its work runs in a native library's own thread pool (OpenCV's trackers): ``covviz track``
+        leaves OpenCV its threads when every tracker of the run has this (the boxes do not depend
+        on them), and limits OpenCV to one thread otherwise (:func:`native_threads_wanted`).
     """
 
     factory: str
     stochastic: bool = False
     configurable: bool = False
     snapshots: bool = False
+    native_threads: bool = False
 
 
 #: Every tracker covviz knows, by name.
@@ -56,12 +62,12 @@ REGISTRY: dict[str, TrackerEntry] = {
                                    snapshots=True),
     "ipca": TrackerEntry("covviz.trackers.ipca:make", stochastic=True, snapshots=True),
     "identity": TrackerEntry("covviz.trackers.base:make_identity", snapshots=True),
-    "csrt": TrackerEntry("covviz.trackers.opencv:make_csrt"),
-    "kcf": TrackerEntry("covviz.trackers.opencv:make_kcf"),
-    "mil": TrackerEntry("covviz.trackers.opencv:make_mil"),
-    "mosse": TrackerEntry("covviz.trackers.opencv:make_mosse"),
-    "medianflow": TrackerEntry("covviz.trackers.opencv:make_medianflow"),
-    "tld": TrackerEntry("covviz.trackers.opencv:make_tld"),
+    "csrt": TrackerEntry("covviz.trackers.opencv:make_csrt", native_threads=True),
+    "kcf": TrackerEntry("covviz.trackers.opencv:make_kcf", native_threads=True),
+    "mil": TrackerEntry("covviz.trackers.opencv:make_mil", native_threads=True),
+    "mosse": TrackerEntry("covviz.trackers.opencv:make_mosse", native_threads=True),
+    "medianflow": TrackerEntry("covviz.trackers.opencv:make_medianflow", native_threads=True),
+    "tld": TrackerEntry("covviz.trackers.opencv:make_tld", native_threads=True),
 }
 #: Views of :data:`REGISTRY`: the names, and those with each property.
 TRACKERS = {name: e.factory for name, e in REGISTRY.items()}
@@ -85,6 +91,19 @@ def tracker_names(names) -> list[str]:
     if unknown:
         raise ValueError(f"unknown tracker {', '.join(map(repr, unknown))}; choose from {', '.join(TRACKERS)}")
     return out
+
+
+def native_threads_wanted(names) -> bool:
+    """Whether a run of these trackers (registry or variant names) should leave OpenCV its threads.
+
+    True when every one runs in OpenCV's own thread pool (:attr:`TrackerEntry.native_threads`):
+    limited to one thread, CSRT's ``update()`` on Car4 takes ~1.4x as long, with the same boxes.
+    With a covviz tracker in the run, OpenCV only contends with its observation threads.
+    """
+    from covviz.trackers.variants import base_name
+
+    entries = [REGISTRY.get(base_name(n)) for n in names]
+    return bool(entries) and all(e is not None and e.native_threads for e in entries)
 
 
 def tracker_rng(seed: int | None) -> np.random.Generator | None:
