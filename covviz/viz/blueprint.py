@@ -163,9 +163,13 @@ def build_blueprint(
                 plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True),
             )
         )
-    plot_box = rrb.Grid(*plots, grid_columns=2) if len(plots) > 2 else rrb.Horizontal(*plots)
+    # IoU and why off track under the frame; the filter's own plots (weights, template cloud) under the events,
+    # so that each plot is tall enough for its legend (four in a 2x2 grid under the frame had their legends
+    # clipped at 1600x900 and covering the curves).
+    plot_box = rrb.Horizontal(*plots[:2])
+    side_plots = plots[2:]
     strip_share = min(0.45 + 0.45 * len(tp), 1.5)  # three lanes per tracker
-    left = rrb.Vertical(strip, frame_view, plot_box, row_shares=[strip_share, 2.0, 1.7 if len(plots) > 2 else 1.0])
+    left = rrb.Vertical(strip, frame_view, plot_box, row_shares=[strip_share, 2.0, 1.25])
 
     middles = []
     for p in cp:
@@ -222,7 +226,7 @@ def build_blueprint(
         contents=[f"+ /{p.timings}/**" for p in tp] + [f"+ /{P.LOGGER_TIME}"],
         plot_legend=rrb.PlotLegend(visible=False),
     )
-    right = rrb.Vertical(docs, timings, row_shares=[3.0, 1])
+    right = rrb.Vertical(docs, *side_plots, timings, row_shares=[2.2] + [1.2] * len(side_plots) + [0.8])
 
     columns = [left] + ([middle] if middle is not None else []) + [right]
     shares = [4.4, 2.6, 3.0] if middle is not None else [6, 3]
