@@ -5,13 +5,12 @@ Three columns:
 * left — the **story strip** (a state timeline: per tracker, on track / model
   / search / estimate failure / lost, the replays' verdicts, label-free
   alarms), the frame with the top particles (all of them one toggle away), the
-  estimate, the ground truth and the likelihood map; under it four plots with
+  estimate, the ground truth and the likelihood map; under it two plots with
   short titles and their legend in a corner: IoU with the particles' reach and
-  the events (x drift began, ▼ lost, ▲ recovered, * suspect, in each tracker's
+  the events (x drift began, ▼ lost, ▲ recovered, in each tracker's
   colour); *why off track*: the likelihood distance at the truth and at the
-  estimate, with the frames labelled model / search / estimate failures; the
-  particle weights; the template cloud's distances, spread, the target's gap
-  to it, the background's margin and the MDS stress;
+  estimate, with the frames labelled model / search / estimate failures (the
+  centre error instead for trackers without templates);
 * middle — one tab per tracker with templates, each with its own panels: the
   zoom (warped patches at the estimate, the truth and the initial box), the
   likelihood along scale and rotation at the estimate's and the truth's
@@ -19,7 +18,10 @@ Three columns:
   background, its template / observation / difference heatmaps and its
   likelihood terms; ``focus`` chooses the open tab;
 * right — the events with the diagnosis of every loss (open by default), the
-  description, the summary and the config in tabs; below, timings.
+  description, the summary and the config in tabs; below them the particle
+  weights and the template cloud's distances, spread, the target's gap to it,
+  the background's margin and the MDS stress (each plot tall enough for its
+  legend), and the timings.
 
 Entity paths come from :mod:`covviz.viz.paths`.
 """
@@ -77,8 +79,8 @@ def build_blueprint(
     the replays; label-free alarms). The plots have short titles and their
     legend in a corner (the colour key in the plot, not in a title the
     layout cuts off); every tracker has its own colour, used for its box,
-    its curves and its event markers (x drift, ▼ loss, ▲ recovery,
-    * suspect). Each tracker with templates has its own tab of panels
+    its curves and its event markers (x drift, ▼ loss, ▲ recovery).
+    Each tracker with templates has its own tab of panels
     (zoom, slices, cloud, heatmaps, likelihood terms).
     Only the top particles are drawn over the frame; all of them are one toggle
     away (the eye icon of ``particles`` in the frame view).
@@ -115,7 +117,7 @@ def build_blueprint(
             name="IoU",
             origin="/",
             contents=[f"+ /{p.iou}" for p in tp] + [f"+ /{p.marker(k)}" for p in tp for k in ("drift", "lost",
-                                                                                                "recovered", "suspect")]
+                                                                                                "recovered")]
             + [f"+ /{p.metrics}/replay/**" for p in tp] + [f"+ /{p.why_series('reach')}" for p in pp]
             + [f"+ /{p.root}/drift/**" for p in tp],  # the label-free drift probability (covviz.viz.drift)
             axis_y=rrb.ScalarAxis(range=(0.0, 1.05)),

@@ -455,15 +455,10 @@ class RerunLogger(Observer):
                                             marker_sizes=[2.5]), static=True)
             # Event markers in the tracker's colour, one shape per kind: several trackers on one plot
             # stay apart.
-            for kind, marker in (("drift", "Cross"), ("lost", "Down"), ("recovered", "Up"), ("suspect", "Asterisk")):
+            for kind, marker in (("drift", "Cross"), ("lost", "Down"), ("recovered", "Up")):
                 rec.log(
                     p.marker(kind),
-                    rr.SeriesPoints(
-                        colors=[c],
-                        names=[f"{s.prefix}{kind}"],
-                        markers=[marker],
-                        marker_sizes=[6.0 if kind != "suspect" else 4.0],
-                    ),
+                    rr.SeriesPoints(colors=[c], names=[f"{s.prefix}{kind}"], markers=[marker], marker_sizes=[6.0]),
                     static=True,
                 )
             why.log_static(rec, p, s.prefix, c, s.name in with_cloud)
