@@ -78,8 +78,9 @@ Thresholds: `config`, `diagnosis`.
 * **Blue outlines**: the background regions of the template cloud's picture.
 
 ## Plots (short titles, the key in a corner of each plot; each tracker has its own colour)
+IoU and why off track under the frame; weights and cloud on the right, under these tabs.
 * **IoU** with the truth (bold) and the **particles' best IoU** (thin: did any particle reach the
-  truth?); markers **x** drift began, **▼** lost, **▲** recovered, **\\*** suspect.
+  truth?); markers **x** drift began, **▼** lost, **▲** recovered.
 * **Why off track**: the likelihood distance `d_eff` at the **truth** (bright) and at the
   **estimate** (dim), for the best template of the cloud (bold) and the estimate's template
   (thin). Off-track frames are labelled: **x model** failure (the truth scores no better than
