@@ -16,7 +16,8 @@ The variants (``VARIANTS``): the default of before issue 14 (the quadrant term:
 ``NEW_TERMS_OFF``), that plus each new term alone, all of them (the default,
 ``ManifoldConfig()``), the default without the gradient floor, the default without the
 position step of the reported box (``ncc_rate`` 0: the filter's own estimate), the default with the paper's
-constant noise (no adaptive diffusion, issue 24), ``manifold-paper``
+constant noise (no adaptive diffusion, issue 24), the default without the observation pull, the default
+without all three of issue 24's additions (``issue24``: what its cost bar is measured against), ``manifold-paper``
 (``PAPER_LIKELIHOOD``), and the default with the motion prior from the image
 (``flow_share``, off by default: docs/tuning.md). ``--cost-only`` times ``update()``
 without running the bench, e.g. ``--variants default,flow --cost-only``. These
@@ -54,6 +55,9 @@ VARIANTS: dict[str, tuple[str, str, dict]] = {
     "noncc": ("the default, position step off (ncc_rate 0)", "manifold", {"ncc_rate": 0.0}),
     "static": ("the default, constant noise (no adaptive diffusion)", "manifold",
                {"adaptive": {"enabled": False}}),
+    "nopull": ("the default, observation pull off", "manifold", {"observation_pull": 0.0}),
+    "issue24": ("the default without issue 24's additions (adaptive diffusion, position step, observation pull)",
+                "manifold", {"adaptive": {"enabled": False}, "ncc_rate": 0.0, "observation_pull": 0.0}),
     "paper": ("manifold-paper", "manifold-paper", {}),
     "flow": ("the default + the flow prior (flow_share 0.5, off by default)", "manifold", {"flow_share": 0.5}),
 }
@@ -118,7 +122,8 @@ def cost_table(sequences: list[str], keys, frames: int, repeat: int) -> list[str
     from covviz.data.sequences import open_sequence
 
     # What each change adds to the default's update(): the default against the variant without it.
-    what = {"previous": "the new terms", "static": "the adaptive diffusion", "noncc": "the position step"}
+    what = {"previous": "the new terms", "static": "the adaptive diffusion", "noncc": "the position step",
+            "nopull": "the observation pull", "issue24": "issue 24's additions"}
     bases = [b for b in what if b in keys] if "default" in keys else []
     flow = not bases and "flow" in keys and "default" in keys  # the flow prior adds to the default
     added_cols = [f"added by {what[b]}, share of the default's update()" for b in bases] or (
